@@ -1,0 +1,120 @@
+//! The camera model and the borrowed RGB-D frame view.
+
+use crate::error::FrameError;
+use crate::params::Params;
+
+/// Pinhole intrinsics K, pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Intrinsics {
+    /// Focal length along x, pixels.
+    pub fx: f32,
+    /// Focal length along y, pixels.
+    pub fy: f32,
+    /// Principal point x, pixels.
+    pub cx: f32,
+    /// Principal point y, pixels.
+    pub cy: f32,
+}
+
+impl Intrinsics {
+    /// Whether the focal lengths are positive and every value is finite.
+    pub fn is_valid(&self) -> bool {
+        self.fx.is_finite() && self.fy.is_finite() && self.fx > 0.0 && self.fy > 0.0
+            && self.cx.is_finite() && self.cy.is_finite()
+    }
+
+    /// Back-projects pixel (u, v) at depth z (metres) into the camera frame, metres.
+    #[inline]
+    pub fn unproject(&self, u: f32, v: f32, z: f32) -> [f32; 3] {
+        [(u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z]
+    }
+
+    /// Projects a camera-frame point (metres) to continuous pixel coordinates; `None` behind the camera.
+    #[inline]
+    pub fn project(&self, p: [f32; 3]) -> Option<[f32; 2]> {
+        if p[2] > 0.0 {
+            Some([self.fx * p[0] / p[2] + self.cx, self.fy * p[1] / p[2] + self.cy])
+        } else {
+            None
+        }
+    }
+}
+
+/// One registered RGB-D frame, borrowed from the caller (row-major, top row first).
+#[derive(Debug, Clone, Copy)]
+pub struct Frame<'a> {
+    /// Image width, pixels.
+    pub width: u16,
+    /// Image height, pixels.
+    pub height: u16,
+    /// Raw depth, `width × height` samples; 0 means no measurement.
+    pub depth: &'a [u16],
+    /// Raw depth units per metre (TUM: 5000, 7-Scenes: 1000).
+    pub depth_scale: f32,
+    /// Packed RGB, `width × height × 3` bytes, registered to the depth image.
+    pub colour: &'a [u8],
+    /// Camera intrinsics of the depth image.
+    pub intrinsics: Intrinsics,
+}
+
+impl<'a> Frame<'a> {
+    /// Number of pixels.
+    pub fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Checks sizes, intrinsics and depth content. Reads the whole depth buffer once.
+    pub fn validate(&self, params: &Params, max_pixels: usize) -> Result<(), FrameError> {
+        let pixels = self.pixels();
+        if pixels == 0 {
+            return Err(FrameError::EmptyFrame);
+        }
+        if pixels > max_pixels {
+            return Err(FrameError::TooLarge { pixels, max_pixels });
+        }
+        if self.depth.len() != pixels {
+            return Err(FrameError::DepthLength { expected: pixels, found: self.depth.len() });
+        }
+        if self.colour.len() != pixels * 3 {
+            return Err(FrameError::ColourLength { expected: pixels * 3, found: self.colour.len() });
+        }
+        if !self.intrinsics.is_valid() {
+            return Err(FrameError::BadIntrinsics);
+        }
+        if !(self.depth_scale.is_finite() && self.depth_scale > 0.0) {
+            return Err(FrameError::BadDepthScale);
+        }
+        let mut first: Option<u16> = None;
+        let mut varied = false;
+        for &raw in self.depth {
+            if self.in_range(raw, params) {
+                match first {
+                    None => first = Some(raw),
+                    Some(f) if f != raw => {
+                        varied = true;
+                        break;
+                    }
+                    Some(_) => {}
+                }
+            }
+        }
+        match first {
+            None => Err(FrameError::NoValidDepth),
+            Some(raw) if !varied => Err(FrameError::ConstantDepth { raw }),
+            Some(_) => Ok(()),
+        }
+    }
+
+    /// Depth in metres of a raw sample.
+    #[inline]
+    pub fn metres(&self, raw: u16) -> f32 {
+        raw as f32 / self.depth_scale
+    }
+
+    /// Whether a raw sample is a measurement inside `[depth_min, depth_max]`.
+    #[inline]
+    pub fn in_range(&self, raw: u16, params: &Params) -> bool {
+        let z = self.metres(raw);
+        raw != 0 && z >= params.depth_min && z <= params.depth_max
+    }
+}

@@ -1,0 +1,294 @@
+//! Stage 3: IH-GMM-style hierarchical refinement of each supervoxel into compact Gaussians, the set C_g
+//! (paper §III-A, after Gao and Dong's integrated hierarchical GMM, for which no public code exists).
+//!
+//! **Split rule (decided here, SPEC §2).** A cluster (a set of voxels of one supervoxel) is split in two when
+//! all of these hold:
+//! - it is not compact: its thickness σ2 exceeds `gmm_max_thickness` (1 cm; it bends or spans two surfaces)
+//!   or its largest principal scale σ0 exceeds `gmm_max_extent` (0.15 m; it is too large to be local);
+//! - it has at least `2 · gmm_min_points` points and at least two voxels;
+//! - it is fewer than `gmm_max_depth` splits below its supervoxel.
+//!
+//! **How it splits.** 2-means on the voxel centroids weighted by their point counts, seeded at μ ± σ0·e0
+//! (along the principal axis), `gmm_kmeans_iters` Lloyd iterations. The split is kept only when both halves
+//! have at least `gmm_min_points` points; otherwise the cluster is a leaf. Leaves are the Gaussians.
+//!
+//! Split decisions use voxel centroids (within-voxel spread is averaged out, so sensor noise does not force
+//! splits). The stored Gaussian is exact at point level: the mean and count come from the voxel sums, and the
+//! covariance (denominator N − 1, as the paper) and support box from a second pass over the sampled points.
+//! The work list is an explicit stack of voxel-order ranges; there is no recursion.
+
+use bytemuck::Zeroable;
+
+use crate::frame::Frame;
+use crate::linalg::{self, Moments, Sym3, Vec3};
+use crate::params::Params;
+use crate::points;
+use crate::pool::Bounded;
+use crate::supervoxel::{self, is_assigned, Supervoxel, Voxel, DROPPED};
+
+/// One refined Gaussian component of C_g.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct Gaussian {
+    /// Mean μ of its support points, metres.
+    pub mean: Vec3,
+    /// Covariance Σ (denominator N − 1), m², as `[xx, xy, xz, yy, yz, zz]`.
+    pub covariance: Sym3,
+    /// Eigenvalues λ0 ≥ λ1 ≥ λ2 of Σ, m².
+    pub eigenvalues: Vec3,
+    /// Unit eigenvectors (rows), `axes[k]` for λk, right-handed; `axes[2]` is the normal.
+    pub axes: [Vec3; 3],
+    /// Support points N.
+    pub count: u32,
+    /// Mean colour of the support, RGB.
+    pub colour: [u8; 3],
+    /// Minimum corner of the support's axis-aligned box, metres.
+    pub bbox_min: Vec3,
+    /// Maximum corner of the support's axis-aligned box, metres.
+    pub bbox_max: Vec3,
+    /// Supervoxel it was refined from.
+    pub supervoxel: u16,
+}
+
+impl Gaussian {
+    /// Principal scales σk = √λk, metres.
+    pub fn sigmas(&self) -> Vec3 {
+        [
+            libm::sqrtf(self.eigenvalues[0]),
+            libm::sqrtf(self.eigenvalues[1]),
+            libm::sqrtf(self.eigenvalues[2]),
+        ]
+    }
+}
+
+/// A pending range `[start, end)` of the voxel order, `depth` splits below its supervoxel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Zeroable)]
+#[repr(C)]
+pub struct SplitTask {
+    /// First position in the voxel order.
+    pub start: u16,
+    /// One past the last position.
+    pub end: u16,
+    /// Splits made above this range.
+    pub depth: u8,
+    /// Supervoxel of the range.
+    pub supervoxel: u16,
+}
+
+/// Counts of the refinement stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct GmmStats {
+    /// Splits made.
+    pub splits: u32,
+    /// Points whose Gaussian did not fit the pool.
+    pub dropped_points: u32,
+}
+
+/// Storage the refinement stage works in.
+pub struct GmmPools<'a, 'b> {
+    /// The labelled voxels (their `gaussian` field is written).
+    pub voxels: &'a mut [Voxel],
+    /// The voxel hash slots.
+    pub slots: &'a [u16],
+    /// Voxel order scratch (at least as long as `voxels`).
+    pub order: &'a mut [u16],
+    /// Supervoxels of stage 2.
+    pub supervoxels: &'a mut [Supervoxel],
+    /// Split work stack.
+    pub stack: &'a mut Bounded<'b, SplitTask>,
+    /// Output Gaussians.
+    pub gaussians: &'a mut Bounded<'b, Gaussian>,
+}
+
+/// Refines every supervoxel into Gaussians and computes their exact point statistics.
+pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> GmmStats {
+    let GmmPools { voxels, slots, order, supervoxels, stack, gaussians } = pools;
+    let mut stats = GmmStats::default();
+    gaussians.clear();
+    stack.clear();
+    let r = params.voxel_resolution;
+
+    // Counting sort of voxel indices by supervoxel.
+    let mut next = 0u16;
+    for sv in supervoxels.iter_mut() {
+        sv.first = next;
+        next = next.saturating_add(sv.voxels);
+    }
+    for (i, v) in voxels.iter().enumerate() {
+        if let Some(sv) = supervoxels.get_mut(v.supervoxel as usize) {
+            if let Some(slot) = order.get_mut(sv.first as usize) {
+                *slot = i as u16;
+            }
+            sv.first = sv.first.saturating_add(1);
+        }
+    }
+    for (s, sv) in supervoxels.iter_mut().enumerate() {
+        sv.first = sv.first.saturating_sub(sv.voxels);
+        let end = sv.first.saturating_add(sv.voxels);
+        let _ = stack.push(SplitTask { start: sv.first, end, depth: 0, supervoxel: s as u16 });
+        // Depth-first, one supervoxel at a time, so the Gaussian order follows the supervoxel order.
+        while let Some(task) = stack.pop() {
+            process(task, voxels, order, stack, gaussians, params, &mut stats);
+        }
+    }
+
+    // Second pass over the points: exact covariance and support box per Gaussian.
+    points::for_each_point(frame, params, |p| {
+        let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
+        let Some(v) = supervoxel::find_voxel(voxels, slots, key).and_then(|i| voxels.get(i)) else { return };
+        let Some(g) = gaussians.get_mut(v.gaussian as usize) else { return };
+        let d = linalg::sub(p.xyz, g.mean);
+        let c = &mut g.covariance;
+        c[0] += d[0] * d[0];
+        c[1] += d[0] * d[1];
+        c[2] += d[0] * d[2];
+        c[3] += d[1] * d[1];
+        c[4] += d[1] * d[2];
+        c[5] += d[2] * d[2];
+        for ((lo, hi), x) in g.bbox_min.iter_mut().zip(g.bbox_max.iter_mut()).zip(p.xyz) {
+            *lo = lo.min(x);
+            *hi = hi.max(x);
+        }
+    });
+    for g in gaussians.as_mut_slice() {
+        let k = if g.count > 1 { 1.0 / (g.count - 1) as f32 } else { 0.0 };
+        for c in g.covariance.iter_mut() {
+            *c *= k;
+        }
+        let e = linalg::sym_eigen(g.covariance);
+        g.eigenvalues = e.values;
+        g.axes = e.vectors;
+    }
+    stats
+}
+
+/// Weighted voxel-centroid moments of the range, and its point count.
+fn range_moments(range: &[u16], voxels: &[Voxel], r: f32) -> (Moments, u32) {
+    let first = range.first().and_then(|&i| voxels.get(i as usize)).map(|v| v.centroid(r)).unwrap_or([0.0; 3]);
+    let mut m = Moments::about(first);
+    let mut points = 0u32;
+    for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+        m.add(v.centroid(r), v.count as f32);
+        points += v.count as u32;
+    }
+    (m, points)
+}
+
+fn process(
+    task: SplitTask,
+    voxels: &mut [Voxel],
+    order: &mut [u16],
+    stack: &mut Bounded<'_, SplitTask>,
+    gaussians: &mut Bounded<'_, Gaussian>,
+    params: &Params,
+    stats: &mut GmmStats,
+) {
+    let r = params.voxel_resolution;
+    let Some(range) = order.get_mut(task.start as usize..task.end as usize) else { return };
+    let (m, points) = range_moments(range, voxels, r);
+    let eig = linalg::sym_eigen(m.covariance());
+    let sigma = eig.sigmas();
+    let compact = sigma[2] <= params.gmm_max_thickness && sigma[0] <= params.gmm_max_extent;
+    let splittable = task.depth < params.gmm_max_depth && points >= 2 * params.gmm_min_points && range.len() >= 2;
+    if !compact && splittable {
+        if let Some(mid) = two_means_partition(range, voxels, m.mean(), eig.vectors[0], sigma[0], params) {
+            let mid = task.start + mid as u16;
+            let right = SplitTask { start: mid, end: task.end, depth: task.depth + 1, supervoxel: task.supervoxel };
+            let left = SplitTask { start: task.start, end: mid, depth: task.depth + 1, supervoxel: task.supervoxel };
+            if stack.push(right).is_some() {
+                if stack.push(left).is_some() {
+                    stats.splits += 1;
+                    return;
+                }
+                stack.pop();
+            }
+            // The stack is full (counted by the pool): the cluster stays whole.
+        }
+    }
+    // Leaf: one Gaussian.
+    let Some(range) = order.get(task.start as usize..task.end as usize) else { return };
+    let mut colour = [0u64; 3];
+    for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+        for (c, s) in colour.iter_mut().zip(v.colour_sum) {
+            *c += s as u64;
+        }
+    }
+    let n = points.max(1) as u64;
+    let mut g = Gaussian::zeroed();
+    g.mean = m.mean();
+    g.count = points;
+    g.colour = [(colour[0] / n) as u8, (colour[1] / n) as u8, (colour[2] / n) as u8];
+    g.bbox_min = [f32::MAX; 3];
+    g.bbox_max = [f32::MIN; 3];
+    g.supervoxel = task.supervoxel;
+    let label = match gaussians.push(g) {
+        Some(id) => id as u16,
+        None => {
+            stats.dropped_points += points;
+            DROPPED
+        }
+    };
+    for &i in range {
+        if let Some(v) = voxels.get_mut(i as usize) {
+            v.gaussian = label;
+        }
+    }
+}
+
+/// Splits `range` in place into two groups by 2-means; returns the size of the first group, or `None` when
+/// either group would have fewer than `gmm_min_points` points.
+fn two_means_partition(
+    range: &mut [u16],
+    voxels: &[Voxel],
+    mean: Vec3,
+    axis: Vec3,
+    sigma0: f32,
+    params: &Params,
+) -> Option<usize> {
+    let r = params.voxel_resolution;
+    let mut centres = [linalg::add(mean, linalg::scale(axis, sigma0)), linalg::sub(mean, linalg::scale(axis, sigma0))];
+    let nearer_first = |c: Vec3, centres: &[Vec3; 2]| {
+        let (d0, d1) = (linalg::sub(c, centres[0]), linalg::sub(c, centres[1]));
+        linalg::dot(d0, d0) <= linalg::dot(d1, d1)
+    };
+    for _ in 0..params.gmm_kmeans_iters {
+        let mut acc = [Moments::about(centres[0]), Moments::about(centres[1])];
+        for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+            let c = v.centroid(r);
+            let k = if nearer_first(c, &centres) { 0 } else { 1 };
+            if let Some(a) = acc.get_mut(k) {
+                a.add(c, v.count as f32);
+            }
+        }
+        if acc[0].weight == 0.0 || acc[1].weight == 0.0 {
+            return None;
+        }
+        let updated = [acc[0].mean(), acc[1].mean()];
+        if updated == centres {
+            break;
+        }
+        centres = updated;
+    }
+    // Two-pointer partition: first-group voxels to the front.
+    let (mut lo, mut hi) = (0usize, range.len());
+    let mut first_points = 0u32;
+    let mut second_points = 0u32;
+    while lo < hi {
+        let v = range.get(lo).and_then(|&i| voxels.get(i as usize))?;
+        if nearer_first(v.centroid(r), &centres) {
+            first_points += v.count as u32;
+            lo += 1;
+        } else {
+            second_points += v.count as u32;
+            hi -= 1;
+            range.swap(lo, hi);
+        }
+    }
+    let ok = first_points >= params.gmm_min_points && second_points >= params.gmm_min_points;
+    ok.then_some(lo).filter(|&m| m > 0 && m < range.len())
+}
+
+/// Whether a voxel's Gaussian label names a Gaussian.
+pub fn has_gaussian(v: &Voxel) -> bool {
+    is_assigned(v.gaussian)
+}

@@ -1,0 +1,270 @@
+//! Small fixed-size linear algebra: 3-vectors, streaming moments and the symmetric 3×3 eigen-decomposition.
+//! Every stage that needs the PCA of a cluster uses [`Moments`] and [`sym_eigen`]; there is no second copy.
+
+/// A 3-vector, metres unless said otherwise.
+pub type Vec3 = [f32; 3];
+
+/// Symmetric 3×3 matrix stored as `[xx, xy, xz, yy, yz, zz]`.
+pub type Sym3 = [f32; 6];
+
+/// a − b.
+#[inline]
+pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// a + b.
+#[inline]
+pub fn add(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// s · a.
+#[inline]
+pub fn scale(a: Vec3, s: f32) -> Vec3 {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+/// a · b.
+#[inline]
+pub fn dot(a: Vec3, b: Vec3) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// a × b.
+#[inline]
+pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// ‖a‖.
+#[inline]
+pub fn norm(a: Vec3) -> f32 {
+    libm::sqrtf(dot(a, a))
+}
+
+/// a / ‖a‖, or `fallback` when a is (nearly) zero.
+#[inline]
+pub fn normalize_or(a: Vec3, fallback: Vec3) -> Vec3 {
+    let n = norm(a);
+    if n > 1e-12 {
+        scale(a, 1.0 / n)
+    } else {
+        fallback
+    }
+}
+
+/// Weighted first and second moments of a point set, accumulated relative to a reference point so that
+/// f32 sums stay precise far from the origin.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Moments {
+    /// Total weight (number of points when each has weight 1).
+    pub weight: f32,
+    /// The point the sums are taken about, metres.
+    pub reference: Vec3,
+    /// Σ w (p − reference).
+    pub sum: Vec3,
+    /// Σ w (p − reference)(p − reference)ᵀ.
+    pub sum_sq: Sym3,
+}
+
+impl Moments {
+    /// Empty moments about `reference`.
+    pub fn about(reference: Vec3) -> Self {
+        Moments { reference, ..Default::default() }
+    }
+
+    /// Adds point `p` with weight `w`.
+    #[inline]
+    pub fn add(&mut self, p: Vec3, w: f32) {
+        let d = sub(p, self.reference);
+        self.weight += w;
+        self.sum = add(self.sum, scale(d, w));
+        let s = &mut self.sum_sq;
+        s[0] += w * d[0] * d[0];
+        s[1] += w * d[0] * d[1];
+        s[2] += w * d[0] * d[2];
+        s[3] += w * d[1] * d[1];
+        s[4] += w * d[1] * d[2];
+        s[5] += w * d[2] * d[2];
+    }
+
+    /// Mean, metres (the reference when empty).
+    pub fn mean(&self) -> Vec3 {
+        if self.weight > 0.0 {
+            add(self.reference, scale(self.sum, 1.0 / self.weight))
+        } else {
+            self.reference
+        }
+    }
+
+    /// Covariance with denominator `weight − 1` (the paper's unbiased form); zero below two points.
+    pub fn covariance(&self) -> Sym3 {
+        if self.weight <= 1.0 {
+            return [0.0; 6];
+        }
+        let m = scale(self.sum, 1.0 / self.weight);
+        let s = &self.sum_sq;
+        let w = self.weight;
+        let k = 1.0 / (w - 1.0);
+        [
+            (s[0] - w * m[0] * m[0]) * k,
+            (s[1] - w * m[0] * m[1]) * k,
+            (s[2] - w * m[0] * m[2]) * k,
+            (s[3] - w * m[1] * m[1]) * k,
+            (s[4] - w * m[1] * m[2]) * k,
+            (s[5] - w * m[2] * m[2]) * k,
+        ]
+    }
+}
+
+/// Eigen-decomposition of a symmetric 3×3 matrix.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Eigen3 {
+    /// Eigenvalues λ0 ≥ λ1 ≥ λ2, clamped at 0 from below (they are variances, m²).
+    pub values: Vec3,
+    /// Unit eigenvectors, `vectors[k]` belongs to `values[k]`; right-handed (`v2 = v0 × v1`).
+    pub vectors: [Vec3; 3],
+}
+
+impl Eigen3 {
+    /// Principal scales σk = √λk, metres.
+    pub fn sigmas(&self) -> Vec3 {
+        [libm::sqrtf(self.values[0]), libm::sqrtf(self.values[1]), libm::sqrtf(self.values[2])]
+    }
+
+    /// The least-variance direction (the surface normal of a flat cluster).
+    pub fn normal(&self) -> Vec3 {
+        self.vectors[2]
+    }
+}
+
+/// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations (at most 16 sweeps; converges in
+/// 4–6 for f32). Deterministic, no recursion, no allocation.
+pub fn sym_eigen(m: Sym3) -> Eigen3 {
+    let mut a = [[m[0], m[1], m[2]], [m[1], m[3], m[4]], [m[2], m[4], m[5]]];
+    let mut v = [[1.0f32, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let scale_ref = libm::fabsf(m[0]) + libm::fabsf(m[3]) + libm::fabsf(m[5]);
+    for _sweep in 0..16 {
+        let off = libm::fabsf(a[0][1]) + libm::fabsf(a[0][2]) + libm::fabsf(a[1][2]);
+        if off <= 1e-9 * scale_ref || off == 0.0 {
+            break;
+        }
+        for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            rotate(&mut a, &mut v, p, q);
+        }
+    }
+    let values = [a[0][0], a[1][1], a[2][2]];
+    // Columns of v are eigenvectors.
+    let vectors = [[v[0][0], v[1][0], v[2][0]], [v[0][1], v[1][1], v[2][1]], [v[0][2], v[1][2], v[2][2]]];
+    // Sort descending (three elements: a fixed compare-swap network).
+    let mut order = [(values[0], vectors[0]), (values[1], vectors[1]), (values[2], vectors[2])];
+    order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    let [(l0, v0), (l1, v1), (l2, v2)] = order;
+    let mut values = [l0, l1, l2];
+    let mut vectors = [v0, v1, v2];
+    for x in values.iter_mut() {
+        if x.is_nan() || *x < 0.0 {
+            *x = 0.0;
+        }
+    }
+    vectors[2] = normalize_or(cross(vectors[0], vectors[1]), [0.0, 0.0, 1.0]);
+    Eigen3 { values, vectors }
+}
+
+/// One Jacobi rotation zeroing a[p][q] (p < q < 3), applied to `a` (both sides) and accumulated in `v`.
+#[allow(clippy::indexing_slicing, clippy::needless_range_loop)] // p, q ∈ {0, 1, 2} by construction; the arrays are 3×3.
+fn rotate(a: &mut [[f32; 3]; 3], v: &mut [[f32; 3]; 3], p: usize, q: usize) {
+    let apq = a[p][q];
+    if apq == 0.0 {
+        return;
+    }
+    let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
+    let t = {
+        let r = libm::sqrtf(theta * theta + 1.0);
+        let t = 1.0 / (libm::fabsf(theta) + r);
+        if theta < 0.0 {
+            -t
+        } else {
+            t
+        }
+    };
+    let c = 1.0 / libm::sqrtf(t * t + 1.0);
+    let s = t * c;
+    // a ← Jᵀ a J with J the rotation in the (p, q) plane.
+    for k in 0..3 {
+        let akp = a[k][p];
+        let akq = a[k][q];
+        a[k][p] = c * akp - s * akq;
+        a[k][q] = s * akp + c * akq;
+    }
+    for k in 0..3 {
+        let apk = a[p][k];
+        let aqk = a[q][k];
+        a[p][k] = c * apk - s * aqk;
+        a[q][k] = s * apk + c * aqk;
+    }
+    a[p][q] = 0.0;
+    a[q][p] = 0.0;
+    for row in v.iter_mut() {
+        let vp = row[p];
+        let vq = row[q];
+        row[p] = c * vp - s * vq;
+        row[q] = s * vp + c * vq;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mat_vec(m: Sym3, x: Vec3) -> Vec3 {
+        [
+            m[0] * x[0] + m[1] * x[1] + m[2] * x[2],
+            m[1] * x[0] + m[3] * x[1] + m[4] * x[2],
+            m[2] * x[0] + m[4] * x[1] + m[5] * x[2],
+        ]
+    }
+
+    #[test]
+    fn eigen_satisfies_definition_on_pseudo_random_matrices() {
+        let mut s = 12345u32;
+        let mut rnd = || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            (s as f32 / u32::MAX as f32) * 2.0 - 1.0
+        };
+        for _ in 0..500 {
+            // B Bᵀ is symmetric positive semi-definite.
+            let b = [[rnd(), rnd(), rnd()], [rnd(), rnd(), rnd()], [rnd(), rnd(), rnd()]];
+            let e = |i: usize, j: usize| (0..3).map(|k| b[i][k] * b[j][k]).sum::<f32>();
+            let m = [e(0, 0), e(0, 1), e(0, 2), e(1, 1), e(1, 2), e(2, 2)];
+            let eig = sym_eigen(m);
+            assert!(eig.values[0] >= eig.values[1] && eig.values[1] >= eig.values[2]);
+            for k in 0..3 {
+                let mv = mat_vec(m, eig.vectors[k]);
+                let lv = scale(eig.vectors[k], eig.values[k]);
+                assert!(norm(sub(mv, lv)) < 1e-4, "residual {:?} vs {:?}", mv, lv);
+                assert!((norm(eig.vectors[k]) - 1.0).abs() < 1e-4);
+            }
+            assert!(dot(cross(eig.vectors[0], eig.vectors[1]), eig.vectors[2]) > 0.999);
+        }
+    }
+
+    #[test]
+    fn moments_match_direct_formula() {
+        let pts = [[1.0, 2.0, 3.0], [1.5, 2.0, 2.5], [0.5, 2.5, 3.5], [1.0, 1.0, 3.0]];
+        let mut m = Moments::about([1.0, 2.0, 3.0]);
+        for p in pts {
+            m.add(p, 1.0);
+        }
+        let mean = m.mean();
+        assert!((mean[0] - 1.0).abs() < 1e-6 && (mean[1] - 1.875).abs() < 1e-6 && (mean[2] - 3.0).abs() < 1e-6);
+        let cov = m.covariance();
+        let direct_xx: f32 = pts.iter().map(|p| (p[0] - mean[0]) * (p[0] - mean[0])).sum::<f32>() / 3.0;
+        let direct_yz: f32 = pts.iter().map(|p| (p[1] - mean[1]) * (p[2] - mean[2])).sum::<f32>() / 3.0;
+        assert!((cov[0] - direct_xx).abs() < 1e-6);
+        assert!((cov[4] - direct_yz).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,99 @@
+//! Borrowed instance-mask sets: the output of any mask-level front end (a detector, a file, the geometric
+//! segmenter), as the paper's 𝒴 = {(M_j, B_j, ℓ_j, s_j)}.
+
+use crate::error::MaskError;
+
+/// One detected instance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Instance {
+    /// Instance id a ≥ 1, unique within the frame (0 means "no instance").
+    pub id: u16,
+    /// Category label ℓ as an index into the caller's label table.
+    pub class: u16,
+    /// Detection confidence s in [0, 1].
+    pub score: f32,
+    /// Bounding box `[x0, y0, x1, y1]`, inclusive pixel coordinates.
+    pub bbox: [u16; 4],
+}
+
+/// How the per-pixel masks are stored.
+#[derive(Debug, Clone, Copy)]
+pub enum MaskPixels<'a> {
+    /// One instance-id image, `width × height` (0 = none). Instances cannot overlap in this layout.
+    IdImage(&'a [u16]),
+    /// One bit plane per instance, in the order of `instances`, each `ceil(width × height / 8)` bytes, bit
+    /// `i % 8` of byte `i / 8` for pixel index `i`. Instances may overlap.
+    BitPlanes(&'a [u8]),
+}
+
+/// The instance masks of one frame, borrowed from the caller.
+#[derive(Debug, Clone, Copy)]
+pub struct MaskSet<'a> {
+    /// Mask width, pixels (must equal the frame's).
+    pub width: u16,
+    /// Mask height, pixels (must equal the frame's).
+    pub height: u16,
+    /// The instances.
+    pub instances: &'a [Instance],
+    /// Their pixels.
+    pub pixels: MaskPixels<'a>,
+}
+
+impl<'a> MaskSet<'a> {
+    /// Bytes of one bit plane for a `width × height` image.
+    pub fn plane_bytes(width: u16, height: u16) -> usize {
+        (width as usize * height as usize).div_ceil(8)
+    }
+
+    /// Checks sizes against the frame, scores, boxes and id uniqueness.
+    pub fn validate(&self, frame_width: u16, frame_height: u16) -> Result<(), MaskError> {
+        if (self.width, self.height) != (frame_width, frame_height) {
+            return Err(MaskError::SizeMismatch {
+                mask: (self.width, self.height),
+                frame: (frame_width, frame_height),
+            });
+        }
+        let pixels = self.width as usize * self.height as usize;
+        let (expected, found) = match self.pixels {
+            MaskPixels::IdImage(ids) => (pixels, ids.len()),
+            MaskPixels::BitPlanes(bits) => {
+                (Self::plane_bytes(self.width, self.height) * self.instances.len(), bits.len())
+            }
+        };
+        if expected != found {
+            return Err(MaskError::PixelLength { expected, found });
+        }
+        for (k, inst) in self.instances.iter().enumerate() {
+            if inst.id == 0 {
+                return Err(MaskError::ReservedId);
+            }
+            if !(inst.score.is_finite() && (0.0..=1.0).contains(&inst.score)) {
+                return Err(MaskError::BadScore { id: inst.id });
+            }
+            let [x0, y0, x1, y1] = inst.bbox;
+            if x0 > x1 || y0 > y1 || x1 >= self.width || y1 >= self.height {
+                return Err(MaskError::BadBox { id: inst.id });
+            }
+            if self.instances.iter().take(k).any(|o| o.id == inst.id) {
+                return Err(MaskError::DuplicateId { id: inst.id });
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether pixel (u, v) belongs to the instance at position `k` of `instances`. Out-of-range → false.
+    pub fn contains(&self, k: usize, u: u16, v: u16) -> bool {
+        if u >= self.width || v >= self.height {
+            return false;
+        }
+        let Some(inst) = self.instances.get(k) else { return false };
+        let i = v as usize * self.width as usize + u as usize;
+        match self.pixels {
+            MaskPixels::IdImage(ids) => ids.get(i).is_some_and(|&id| id == inst.id),
+            MaskPixels::BitPlanes(bits) => {
+                let plane = Self::plane_bytes(self.width, self.height);
+                bits.get(k * plane + i / 8).is_some_and(|b| (b >> (i % 8)) & 1 == 1)
+            }
+        }
+    }
+}

@@ -1,0 +1,233 @@
+//! Every tunable of the pipeline in one place, with the paper's names and defaults (paper §VI, SPEC §2).
+//!
+//! Parameters the paper leaves open carry the value chosen here and the reason in their doc comment.
+
+use crate::error::ParamError;
+
+/// Which method the mapper runs (SPEC §3): one switch each, same code path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize), serde(rename_all = "lowercase"))]
+pub enum Variant {
+    /// M2-SMap as published.
+    Full,
+    /// Fusion ignores instance ids; labels are assigned after merging.
+    Pmsao,
+    /// No superquadric equivalence alignment before smoothing.
+    Wsqa,
+    /// Gaussians only: no planes, no superquadrics, no semantics.
+    Mmog,
+    /// Planes and Gaussians, geometry-only fusion, no superquadrics.
+    Mmp,
+    /// Planes, ellipsoids allocated by geometry, and Gaussians; no semantics.
+    Mmq,
+}
+
+impl Variant {
+    /// Every variant, in the order reports list them.
+    pub const ALL: [Variant; 6] =
+        [Variant::Full, Variant::Pmsao, Variant::Wsqa, Variant::Mmog, Variant::Mmp, Variant::Mmq];
+
+    /// The lower-case name used on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Full => "full",
+            Variant::Pmsao => "pmsao",
+            Variant::Wsqa => "wsqa",
+            Variant::Mmog => "mmog",
+            Variant::Mmp => "mmp",
+            Variant::Mmq => "mmq",
+        }
+    }
+
+    /// Parses a name from [`Variant::name`].
+    pub fn from_name(name: &str) -> Option<Variant> {
+        Variant::ALL.iter().copied().find(|v| v.name() == name)
+    }
+}
+
+/// The mapping parameters Θ. `Params::default()` is the paper's setting.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize), serde(default, deny_unknown_fields))]
+pub struct Params {
+    /// Method variant (SPEC §3).
+    pub variant: Variant,
+
+    // --- 1. points -------------------------------------------------------------------------------------
+    /// Nearest depth kept, metres (paper: 0.1).
+    pub depth_min: f32,
+    /// Farthest depth kept, metres (paper: 3.0).
+    pub depth_max: f32,
+    /// Fraction of in-range pixels sampled (paper: 15 %).
+    pub sample_rate: f32,
+    /// Seed of the sampling hash; the same seed gives the same sample on every machine.
+    pub sample_seed: u32,
+
+    // --- 2. supervoxels (VCCS) ---------------------------------------------------------------------------
+    /// Voxel edge R_voxel, metres (paper: 0.03).
+    pub voxel_resolution: f32,
+    /// Seed spacing R_seed, metres (paper: 0.65).
+    pub seed_resolution: f32,
+    /// VCCS colour weight w_c (PCL's example value 0.2; the paper does not say).
+    pub color_importance: f32,
+    /// VCCS spatial weight w_s (PCL's example value 0.4).
+    pub spatial_importance: f32,
+    /// VCCS normal weight w_n (PCL's example value 1.0).
+    pub normal_importance: f32,
+    /// Fewest voxels a seed cell (R_seed cube) must hold to place a seed: sparse cells are left to their
+    /// neighbours' growth, as VCCS filters seeds in empty space.
+    pub seed_min_voxels: u16,
+
+    // --- 3. IH-GMM refinement ---------------------------------------------------------------------------
+    /// A component thicker than this (σ2, metres) is split. 1 cm: well above Kinect noise after 3 cm voxel
+    /// averaging, small enough that a box edge or a curved patch is split into flat pieces.
+    pub gmm_max_thickness: f32,
+    /// A component whose largest principal scale σ0 exceeds this (metres) is split, so each Gaussian stays
+    /// local; fusion merges coplanar pieces again.
+    pub gmm_max_extent: f32,
+    /// Fewest points of a Gaussian: a split that would leave a child smaller than this is not made, and a
+    /// supervoxel smaller than this is an outlier cluster (counted, not mapped).
+    pub gmm_min_points: u32,
+    /// Deepest binary split (bounds the work per supervoxel).
+    pub gmm_max_depth: u8,
+    /// Lloyd iterations of each 2-means split.
+    pub gmm_kmeans_iters: u8,
+
+    // --- 4. mask annotation -------------------------------------------------------------------------------
+    /// Fewest valid projected support points for an annotation (paper: 20).
+    pub min_proj_points: u32,
+    /// Support ratio ρ that must be exceeded (paper: 0.6).
+    pub min_support_ratio: f32,
+    /// Smallest detection confidence τ_s of a candidate mask (paper: 0.5).
+    pub min_confidence: f32,
+
+    // --- 5. semantic-constrained fusion -----------------------------------------------------------------
+    /// Largest AABB gap d_connect, metres (paper: 0.15).
+    pub d_connect: f32,
+    /// Largest unsigned normal angle θ_min, degrees (paper: 15).
+    pub theta_min_deg: f32,
+    /// Largest point-to-plane distance l_min, metres (paper: 0.10).
+    pub l_min: f32,
+
+    // --- 6./7. flat planes ------------------------------------------------------------------------------
+    /// Fewest points of a plane support N_min (paper: 200).
+    pub n_min: u32,
+    /// Largest thickness σ2 τ_t, metres (paper: 0.04).
+    pub tau_t: f32,
+    /// Largest eigenvalue ratio λ2/λ0 τ_λ (paper: 0.02).
+    pub tau_lambda: f32,
+    /// Smallest principal scales σ0, σ1 τ_s, metres (paper: 0.1125).
+    pub tau_s: f32,
+    /// Grid of the bounded-plane occupancy g_p, metres (open in the paper; 0.05 as SPEC §2 suggests).
+    pub g_p: f32,
+
+    // --- 9. superquadrics --------------------------------------------------------------------------------
+    /// Fewest points of an object for an SQ fit (paper: 80).
+    pub sq_min_points: u32,
+    /// Largest accepted fitting error E_sq (paper: 0.20).
+    pub sq_max_error: f32,
+    /// Levenberg–Marquardt iterations (paper: 12).
+    pub lm_max_iters: u32,
+    /// Points sampled for the fit (paper: 100).
+    pub lm_samples: u32,
+
+    // --- 10. tracks ---------------------------------------------------------------------------------------
+    /// Largest centre distance for association d_max, metres (paper: 0.35).
+    pub d_max: f32,
+    /// Centre EMA weight α_c (paper: 0.6).
+    pub alpha_c: f32,
+    /// Rotation SLERP weight α_R (paper: 0.35).
+    pub alpha_r: f32,
+    /// Axes and shape EMA weight α_s (paper: 0.35).
+    pub alpha_s: f32,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            variant: Variant::Full,
+            depth_min: 0.1,
+            depth_max: 3.0,
+            sample_rate: 0.15,
+            sample_seed: 0x6d32_736d,
+            voxel_resolution: 0.03,
+            seed_resolution: 0.65,
+            color_importance: 0.2,
+            spatial_importance: 0.4,
+            normal_importance: 1.0,
+            seed_min_voxels: 8,
+            gmm_max_thickness: 0.01,
+            gmm_max_extent: 0.15,
+            gmm_min_points: 10,
+            gmm_max_depth: 12,
+            gmm_kmeans_iters: 6,
+            min_proj_points: 20,
+            min_support_ratio: 0.6,
+            min_confidence: 0.5,
+            d_connect: 0.15,
+            theta_min_deg: 15.0,
+            l_min: 0.10,
+            n_min: 200,
+            tau_t: 0.04,
+            tau_lambda: 0.02,
+            tau_s: 0.1125,
+            g_p: 0.05,
+            sq_min_points: 80,
+            sq_max_error: 0.20,
+            lm_max_iters: 12,
+            lm_samples: 100,
+            d_max: 0.35,
+            alpha_c: 0.6,
+            alpha_r: 0.35,
+            alpha_s: 0.35,
+        }
+    }
+}
+
+/// Largest voxel index along one axis that the packed voxel key holds (see [`crate::supervoxel::voxel_key`]).
+pub const VOXEL_GRID_HALF_EXTENT: i32 = 1023;
+
+impl Params {
+    /// Checks every range; [`crate::Mapper::new`] refuses parameters that fail.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        fn check(ok: bool, name: &'static str) -> Result<(), ParamError> {
+            if ok {
+                Ok(())
+            } else {
+                Err(ParamError::OutOfRange(name))
+            }
+        }
+        let pos = |x: f32| x.is_finite() && x > 0.0;
+        let unit = |x: f32| x.is_finite() && (0.0..=1.0).contains(&x);
+        check(pos(self.depth_min), "depth_min")?;
+        check(pos(self.depth_max) && self.depth_max > self.depth_min, "depth_max")?;
+        check(unit(self.sample_rate) && self.sample_rate > 0.0, "sample_rate")?;
+        check(pos(self.voxel_resolution), "voxel_resolution")?;
+        // z voxel indices must fit the packed key: depth_max / voxel < 1024.
+        check(self.depth_max / self.voxel_resolution < VOXEL_GRID_HALF_EXTENT as f32, "voxel_resolution")?;
+        check(pos(self.seed_resolution) && self.seed_resolution >= self.voxel_resolution, "seed_resolution")?;
+        check(self.color_importance.is_finite() && self.color_importance >= 0.0, "color_importance")?;
+        check(self.spatial_importance.is_finite() && self.spatial_importance >= 0.0, "spatial_importance")?;
+        check(self.normal_importance.is_finite() && self.normal_importance >= 0.0, "normal_importance")?;
+        check(pos(self.gmm_max_thickness), "gmm_max_thickness")?;
+        check(pos(self.gmm_max_extent), "gmm_max_extent")?;
+        check(self.gmm_min_points >= 3, "gmm_min_points")?;
+        check(self.gmm_max_depth <= 30, "gmm_max_depth")?;
+        check(self.gmm_kmeans_iters >= 1, "gmm_kmeans_iters")?;
+        check(unit(self.min_support_ratio), "min_support_ratio")?;
+        check(unit(self.min_confidence), "min_confidence")?;
+        check(pos(self.d_connect), "d_connect")?;
+        check(self.theta_min_deg.is_finite() && (0.0..=90.0).contains(&self.theta_min_deg), "theta_min_deg")?;
+        check(pos(self.l_min), "l_min")?;
+        check(pos(self.tau_t), "tau_t")?;
+        check(unit(self.tau_lambda), "tau_lambda")?;
+        check(pos(self.tau_s), "tau_s")?;
+        check(pos(self.g_p), "g_p")?;
+        check(pos(self.sq_max_error), "sq_max_error")?;
+        check(self.lm_samples >= 11, "lm_samples")?;
+        check(pos(self.d_max), "d_max")?;
+        check(unit(self.alpha_c), "alpha_c")?;
+        check(unit(self.alpha_r), "alpha_r")?;
+        check(unit(self.alpha_s), "alpha_s")?;
+        Ok(())
+    }
+}

@@ -1,0 +1,98 @@
+//! Stage 1: the observed point set P — depth range filter and the seeded 15 % sample (paper §VI).
+//!
+//! The sample is a pure function of (pixel index, seed): a pixel is kept when a 32-bit hash of its index falls
+//! below `sample_rate × 2³²`. No state is kept, so any later stage can visit exactly the same points again by
+//! re-reading the caller's depth buffer, and the result is the same on every machine.
+
+use crate::frame::Frame;
+use crate::linalg::Vec3;
+use crate::params::Params;
+
+/// One sampled point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Point {
+    /// Pixel column, pixels.
+    pub u: u16,
+    /// Pixel row, pixels.
+    pub v: u16,
+    /// Camera-frame position, metres.
+    pub xyz: Vec3,
+    /// Colour from the registered RGB image.
+    pub rgb: [u8; 3],
+}
+
+/// The 32-bit mixing function of the sampler ("lowbias32", a bijection with good avalanche).
+#[inline]
+pub fn mix32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^= x >> 16;
+    x
+}
+
+/// Hash threshold for a sample rate: a pixel is kept when `mix32(..) < threshold` (as u64).
+#[inline]
+pub fn sample_threshold(rate: f32) -> u64 {
+    let t = rate as f64 * 4_294_967_296.0;
+    if t <= 0.0 {
+        0
+    } else if t >= 4_294_967_296.0 {
+        1 << 32
+    } else {
+        t as u64
+    }
+}
+
+/// Whether pixel index `i` is in the sample for `seed` and `threshold`.
+#[inline]
+pub fn is_sampled(i: u32, seed: u32, threshold: u64) -> bool {
+    (mix32(i ^ mix32(seed)) as u64) < threshold
+}
+
+/// Calls `f` for every sampled, in-range point of `frame`, in pixel order. The frame must have been validated.
+pub fn for_each_point(frame: &Frame<'_>, params: &Params, mut f: impl FnMut(&Point)) {
+    let threshold = sample_threshold(params.sample_rate);
+    let w = frame.width as usize;
+    let k = frame.intrinsics;
+    let rgb_rows = frame.colour.chunks_exact(w * 3);
+    for ((v, row), rgb_row) in frame.depth.chunks_exact(w).enumerate().zip(rgb_rows) {
+        let base = (v * w) as u32;
+        for ((u, &raw), rgb) in row.iter().enumerate().zip(rgb_row.chunks_exact(3)) {
+            if !frame.in_range(raw, params) || !is_sampled(base + u as u32, params.sample_seed, threshold) {
+                continue;
+            }
+            let z = frame.metres(raw);
+            let point = Point {
+                u: u as u16,
+                v: v as u16,
+                xyz: k.unproject(u as f32, v as f32, z),
+                rgb: [
+                    rgb.first().copied().unwrap_or(0),
+                    rgb.get(1).copied().unwrap_or(0),
+                    rgb.get(2).copied().unwrap_or(0),
+                ],
+            };
+            f(&point);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sample_rate_is_respected_and_deterministic() {
+        let t = sample_threshold(0.15);
+        let kept = (0..307_200u32).filter(|&i| is_sampled(i, 7, t)).count();
+        let rate = kept as f64 / 307_200.0;
+        assert!((rate - 0.15).abs() < 0.003, "rate {rate}");
+        let again = (0..307_200u32).filter(|&i| is_sampled(i, 7, t)).count();
+        assert_eq!(kept, again);
+        let other_seed = (0..1000u32).filter(|&i| is_sampled(i, 7, t) != is_sampled(i, 8, t)).count();
+        assert!(other_seed > 100, "seed must change the sample");
+        assert_eq!((0..1000u32).filter(|&i| is_sampled(i, 1, sample_threshold(1.0))).count(), 1000);
+    }
+}

@@ -1,0 +1,183 @@
+//! Fixed-capacity pools over caller-owned slices, with peak and overflow accounting.
+
+/// Every pool of the mapper. The order is the order of reports and of `memory_budget.md`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoolId {
+    /// Occupied 3 cm voxels with their point sums.
+    Voxels,
+    /// Open-addressing slots of the voxel hash (voxel index + 1, 0 = empty).
+    VoxelSlots,
+    /// Per-voxel scratch: growth stamps during supervoxel growth, then the voxel order of the split stage.
+    VoxelScratch,
+    /// Seed cells (R_seed cubes) during seeding.
+    SeedCells,
+    /// Supervoxels.
+    Supervoxels,
+    /// Pending ranges of the IH-GMM split stack.
+    SplitStack,
+    /// Refined Gaussians, the set C_g.
+    Gaussians,
+}
+
+impl PoolId {
+    /// Number of pools.
+    pub const COUNT: usize = 7;
+    /// All pools in report order.
+    pub const ALL: [PoolId; PoolId::COUNT] = [
+        PoolId::Voxels,
+        PoolId::VoxelSlots,
+        PoolId::VoxelScratch,
+        PoolId::SeedCells,
+        PoolId::Supervoxels,
+        PoolId::SplitStack,
+        PoolId::Gaussians,
+    ];
+
+    /// Snake-case name used in `summary.json` and `memory_budget.md`.
+    pub fn name(self) -> &'static str {
+        match self {
+            PoolId::Voxels => "voxels",
+            PoolId::VoxelSlots => "voxel_slots",
+            PoolId::VoxelScratch => "voxel_scratch",
+            PoolId::SeedCells => "seed_cells",
+            PoolId::Supervoxels => "supervoxels",
+            PoolId::SplitStack => "split_stack",
+            PoolId::Gaussians => "gaussians",
+        }
+    }
+}
+
+/// Use of one pool during one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PoolUsage {
+    /// Most entries in use at once during the frame.
+    pub peak: usize,
+    /// Entries the pool holds.
+    pub capacity: usize,
+    /// Insertions refused because the pool was full (each is work dropped and counted).
+    pub overflow_events: u32,
+}
+
+/// A vector of at most `items.len()` elements over caller-owned storage.
+#[derive(Debug)]
+pub struct Bounded<'a, T> {
+    items: &'a mut [T],
+    len: usize,
+    peak: usize,
+    overflows: u32,
+}
+
+impl<'a, T: Copy> Bounded<'a, T> {
+    /// An empty pool over `items`.
+    pub fn new(items: &'a mut [T]) -> Self {
+        Bounded { items, len: 0, peak: 0, overflows: 0 }
+    }
+
+    /// Appends `value` and returns its index, or counts an overflow and returns `None` when full.
+    pub fn push(&mut self, value: T) -> Option<usize> {
+        match self.items.get_mut(self.len) {
+            Some(slot) => {
+                *slot = value;
+                self.len += 1;
+                self.peak = self.peak.max(self.len);
+                Some(self.len - 1)
+            }
+            None => {
+                self.overflows = self.overflows.saturating_add(1);
+                None
+            }
+        }
+    }
+
+    /// Removes the last element.
+    pub fn pop(&mut self) -> Option<T> {
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        self.items.get(self.len).copied()
+    }
+
+    /// Empties the pool and starts a new frame's accounting.
+    pub fn clear(&mut self) {
+        self.len = 0;
+        self.peak = 0;
+        self.overflows = 0;
+    }
+
+    /// Number of elements.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the pool is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The elements in use.
+    pub fn as_slice(&self) -> &[T] {
+        self.items.get(..self.len).unwrap_or(&[])
+    }
+
+    /// The elements in use, mutable.
+    pub fn as_mut_slice(&mut self) -> &mut [T] {
+        let len = self.len;
+        self.items.get_mut(..len).unwrap_or(&mut [])
+    }
+
+    /// Element `i`, if in use.
+    pub fn get(&self, i: usize) -> Option<&T> {
+        self.as_slice().get(i)
+    }
+
+    /// Element `i`, mutable, if in use.
+    pub fn get_mut(&mut self, i: usize) -> Option<&mut T> {
+        self.as_mut_slice().get_mut(i)
+    }
+
+    /// Use since the last [`Bounded::clear`].
+    pub fn usage(&self) -> PoolUsage {
+        PoolUsage { peak: self.peak, capacity: self.items.len(), overflow_events: self.overflows }
+    }
+}
+
+/// Multiplicative hash of a 32-bit key onto `slots` buckets (Knuth's constant; deterministic everywhere).
+#[inline]
+pub fn bucket(key: u32, slots: usize) -> usize {
+    let h = key.wrapping_mul(0x9E37_79B1) ^ (key >> 15);
+    (h as usize) % slots.max(1)
+}
+
+/// Result of probing an open-addressing table for a key.
+pub enum Probe {
+    /// The key is stored at this entry index.
+    Found(usize),
+    /// The key is absent; this slot position is free for it.
+    Vacant(usize),
+    /// The key is absent and the table has no free slot.
+    Full,
+}
+
+/// Linear probing over `slots` (entry index + 1, 0 = empty) for `key`, where `key_of(i)` is entry i's key.
+pub fn probe(slots: &[u16], key: u32, mut key_of: impl FnMut(usize) -> Option<u32>) -> Probe {
+    let n = slots.len();
+    let mut pos = bucket(key, n);
+    for _ in 0..n {
+        match slots.get(pos).copied() {
+            Some(0) => return Probe::Vacant(pos),
+            Some(s) => {
+                let i = s as usize - 1;
+                if key_of(i) == Some(key) {
+                    return Probe::Found(i);
+                }
+            }
+            None => return Probe::Full,
+        }
+        pos += 1;
+        if pos == n {
+            pos = 0;
+        }
+    }
+    Probe::Full
+}

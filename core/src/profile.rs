@@ -1,0 +1,120 @@
+//! Capacity profiles: the caller-owned storage of every pool, sized at compile time.
+//!
+//! A profile is a [`Storage`] type with its capacities as const parameters. All-zero bytes are a valid empty
+//! storage, so firmware places it in `.bss` and a host allocates it zeroed on the heap
+//! (`bytemuck::zeroed_box`) without building it on the stack.
+
+use bytemuck::Zeroable;
+
+use crate::gmm::{Gaussian, SplitTask};
+use crate::mapper::Mapper;
+use crate::pool::PoolId;
+use crate::supervoxel::{SeedCell, Supervoxel, Voxel};
+
+/// Depth of the split work stack. The stack never holds more than `gmm_max_depth + 1 ≤ 31` ranges.
+pub const SPLIT_STACK: usize = 64;
+
+/// Storage of every pool of the mapper.
+///
+/// - `V`: voxels (≤ 65 533, voxel indices are `u16`), also the length of the per-voxel scratch;
+/// - `H`: voxel hash slots (about 2 × `V` keeps linear probing short);
+/// - `C`: seed cells; `S`: supervoxels; `G`: Gaussians;
+/// - `P`: largest frame, pixels.
+#[derive(Zeroable)]
+#[repr(C)]
+pub struct Storage<const V: usize, const H: usize, const C: usize, const S: usize, const G: usize, const P: usize>
+{
+    pub(crate) voxels: [Voxel; V],
+    pub(crate) slots: [u16; H],
+    pub(crate) scratch: [u16; V],
+    pub(crate) seeds: [SeedCell; C],
+    pub(crate) supervoxels: [Supervoxel; S],
+    pub(crate) stack: [SplitTask; SPLIT_STACK],
+    pub(crate) gaussians: [Gaussian; G],
+}
+
+/// Mutable views of every pool of one storage.
+pub struct Parts<'a> {
+    /// Voxel pool.
+    pub voxels: &'a mut [Voxel],
+    /// Voxel hash slots.
+    pub slots: &'a mut [u16],
+    /// Per-voxel scratch.
+    pub scratch: &'a mut [u16],
+    /// Seed cells.
+    pub seeds: &'a mut [SeedCell],
+    /// Supervoxels.
+    pub supervoxels: &'a mut [Supervoxel],
+    /// Split stack.
+    pub stack: &'a mut [SplitTask],
+    /// Gaussians.
+    pub gaussians: &'a mut [Gaussian],
+}
+
+/// A capacity profile: storage the mapper can run in.
+pub trait Profile {
+    /// Largest frame, pixels.
+    const MAX_PIXELS: usize;
+    /// The pools as slices.
+    fn parts(&mut self) -> Parts<'_>;
+}
+
+impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: usize, const P: usize> Profile
+    for Storage<V, H, C, S, G, P>
+{
+    const MAX_PIXELS: usize = P;
+    fn parts(&mut self) -> Parts<'_> {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::INDICES_FIT;
+        Parts {
+            voxels: &mut self.voxels,
+            slots: &mut self.slots,
+            scratch: &mut self.scratch,
+            seeds: &mut self.seeds,
+            supervoxels: &mut self.supervoxels,
+            stack: &mut self.stack,
+            gaussians: &mut self.gaussians,
+        }
+    }
+}
+
+impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: usize, const P: usize>
+    Storage<V, H, C, S, G, P>
+{
+    /// Every pool as (pool, capacity, bytes per element), in report order — the rows of `memory_budget.md`.
+    pub const POOLS: [(PoolId, usize, usize); PoolId::COUNT] = [
+        (PoolId::Voxels, V, core::mem::size_of::<Voxel>()),
+        (PoolId::VoxelSlots, H, core::mem::size_of::<u16>()),
+        (PoolId::VoxelScratch, V, core::mem::size_of::<u16>()),
+        (PoolId::SeedCells, C, core::mem::size_of::<SeedCell>()),
+        (PoolId::Supervoxels, S, core::mem::size_of::<Supervoxel>()),
+        (PoolId::SplitStack, SPLIT_STACK, core::mem::size_of::<SplitTask>()),
+        (PoolId::Gaussians, G, core::mem::size_of::<Gaussian>()),
+    ];
+
+    /// Compile-time check that voxel, supervoxel and Gaussian indices fit `u16` beside the reserved labels.
+    const INDICES_FIT: () = assert!(
+        V < crate::supervoxel::DROPPED as usize
+            && S < crate::supervoxel::DROPPED as usize
+            && G < crate::supervoxel::DROPPED as usize
+            && H >= V
+    );
+
+    /// Bytes of the storage itself.
+    pub const BYTES: usize = core::mem::size_of::<Self>();
+}
+
+/// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included.
+pub type McuStorage = Storage<8192, 16384, 128, 256, 512, { 640 * 480 }>;
+
+/// The `host` profile: larger pools for workstation replays (frames up to 1280×1024).
+pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, { 1280 * 1024 }>;
+
+/// RAM budget of the `mcu` profile, bytes.
+pub const MCU_BUDGET_BYTES: usize = 512 * 1024;
+
+/// Everything the `mcu` profile keeps in RAM: its storage plus the mapper that borrows it.
+pub const MCU_TOTAL_BYTES: usize = McuStorage::BYTES + core::mem::size_of::<Mapper<'static>>();
+
+// The build fails when the mcu profile outgrows its budget.
+const _: () = assert!(MCU_TOTAL_BYTES <= MCU_BUDGET_BYTES, "mcu profile exceeds 512 KiB");

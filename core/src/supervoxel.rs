@@ -1,0 +1,572 @@
+//! Stage 2: 3 cm voxels and VCCS-style supervoxels (paper §III-A; Papon et al., CVPR 2013).
+//!
+//! 1. **Voxels.** Every sampled point adds to the sums of its `voxel_resolution` cube (count, Σ offset, Σ RGB);
+//!    the hash from cube key to voxel is open addressing over a fixed slot array. Voxel indices follow the
+//!    pixel scan, so they are deterministic.
+//! 2. **Normals.** A voxel's normal is the least-variance direction of its own and its 26 neighbours'
+//!    centroids, turned towards the camera.
+//! 3. **Seeds.** The space is cut into `seed_resolution` cubes; in each cube holding at least
+//!    `seed_min_voxels` voxels, the voxel nearest the cube centre is a seed.
+//! 4. **Flow-constrained growth.** In rounds, each supervoxel claims the unlabelled voxels 26-adjacent to the
+//!    voxels it claimed in the previous round; a voxel reachable from several supervoxels goes to the one with
+//!    the smallest VCCS distance D² = w_c·D_c² + w_s·D_s²/(3·R_seed²) + w_n·D_n² (ties: lower index). Centres
+//!    are updated after every round; growth stops after ⌈1.8·R_seed/R_voxel⌉ rounds as in VCCS. A voxel is
+//!    only ever claimed next to a voxel of the same supervoxel and never taken away, so every supervoxel is
+//!    26-connected.
+//! 5. **Orphans.** Voxels left unlabelled form 26-connected components (union-find in index order); each
+//!    component with at least `gmm_min_points` points becomes a supervoxel of its own, smaller ones are outlier
+//!    clusters (sensor speckle), counted and left out of the map.
+
+use bytemuck::Zeroable;
+
+use crate::frame::Frame;
+use crate::linalg::{self, Moments, Vec3};
+use crate::params::{Params, VOXEL_GRID_HALF_EXTENT};
+use crate::points;
+use crate::pool::{self, Bounded, Probe};
+
+/// Label of a voxel that no supervoxel has claimed (yet).
+pub const UNLABELLED: u16 = u16::MAX;
+/// Label of a voxel in an outlier cluster (too few points to map).
+pub const OUTLIER: u16 = u16::MAX - 1;
+/// Label of a voxel whose supervoxel did not fit the pool (counted as an overflow).
+pub const DROPPED: u16 = u16::MAX - 2;
+
+/// Whether a label names a real supervoxel or Gaussian.
+#[inline]
+pub fn is_assigned(label: u16) -> bool {
+    label < DROPPED
+}
+
+/// One occupied voxel: the sums of the sampled points that fall into it.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct Voxel {
+    /// Packed cube key, see [`voxel_key`].
+    pub key: u32,
+    /// Points in the voxel.
+    pub count: u16,
+    /// Supervoxel index, or [`UNLABELLED`], [`OUTLIER`], [`DROPPED`].
+    pub supervoxel: u16,
+    /// Gaussian index after stage 3, or a label constant.
+    pub gaussian: u16,
+    /// Unit normal × 32767, facing the camera.
+    pub normal: [i16; 3],
+    /// Σ (p − corner) over its points, metres.
+    pub sum: Vec3,
+    /// Σ RGB over its points.
+    pub colour_sum: [u32; 3],
+}
+
+impl Voxel {
+    /// Mean of its points, metres.
+    pub fn centroid(&self, resolution: f32) -> Vec3 {
+        let corner = key_corner(self.key, resolution);
+        linalg::add(corner, linalg::scale(self.sum, 1.0 / (self.count.max(1)) as f32))
+    }
+
+    /// Mean colour, each channel in [0, 1].
+    pub fn colour(&self) -> Vec3 {
+        let k = 1.0 / (255.0 * self.count.max(1) as f32);
+        [self.colour_sum[0] as f32 * k, self.colour_sum[1] as f32 * k, self.colour_sum[2] as f32 * k]
+    }
+
+    /// Unit normal (dequantised).
+    pub fn unit_normal(&self) -> Vec3 {
+        let k = 1.0 / 32767.0;
+        [self.normal[0] as f32 * k, self.normal[1] as f32 * k, self.normal[2] as f32 * k]
+    }
+}
+
+/// One supervoxel with its VCCS features.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct Supervoxel {
+    /// Index of the seed voxel (the lowest voxel index for orphan components).
+    pub seed: u16,
+    /// Voxels claimed.
+    pub voxels: u16,
+    /// Points in those voxels.
+    pub points: u32,
+    /// Mean of the member voxel centroids, metres.
+    pub centroid: Vec3,
+    /// Mean member normal (unit).
+    pub normal: Vec3,
+    /// Mean member colour, [0, 1].
+    pub colour: Vec3,
+    reference: Vec3,
+    acc_centroid: Vec3,
+    acc_normal: Vec3,
+    acc_colour: Vec3,
+    /// Start of this supervoxel's voxels in the split-stage voxel order (stage 3).
+    pub(crate) first: u16,
+}
+
+impl Supervoxel {
+    fn start(seed: u16, v: &Voxel, resolution: f32) -> Self {
+        let mut sv = Supervoxel::zeroed();
+        sv.seed = seed;
+        sv.reference = v.centroid(resolution);
+        sv.add(v, resolution);
+        sv.finish_round();
+        sv
+    }
+
+    fn add(&mut self, v: &Voxel, resolution: f32) {
+        self.voxels = self.voxels.saturating_add(1);
+        self.points += v.count as u32;
+        self.acc_centroid = linalg::add(self.acc_centroid, linalg::sub(v.centroid(resolution), self.reference));
+        self.acc_normal = linalg::add(self.acc_normal, v.unit_normal());
+        self.acc_colour = linalg::add(self.acc_colour, v.colour());
+    }
+
+    fn finish_round(&mut self) {
+        let k = 1.0 / self.voxels.max(1) as f32;
+        self.centroid = linalg::add(self.reference, linalg::scale(self.acc_centroid, k));
+        self.normal = linalg::normalize_or(self.acc_normal, self.normal);
+        self.colour = linalg::scale(self.acc_colour, k);
+    }
+}
+
+/// One cube of the seed grid while seeds are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct SeedCell {
+    /// Packed cube key at `seed_resolution`.
+    pub key: u32,
+    /// Voxels whose centroid lies in the cube (0 = free slot).
+    pub voxels: u16,
+    /// Voxel nearest the cube centre so far.
+    pub best: u16,
+    /// Its squared distance to the centre, m².
+    pub best_d2: f32,
+}
+
+/// Packs the integer cube coordinates of `p` at `resolution` into 32 bits (x, y: 11 bits each with an offset
+/// of 1024; z: 10 bits). `None` when outside the key range (a point farther than 1023 cubes).
+#[inline]
+pub fn voxel_key(p: Vec3, resolution: f32) -> Option<u32> {
+    let ix = libm::floorf(p[0] / resolution) as i32;
+    let iy = libm::floorf(p[1] / resolution) as i32;
+    let iz = libm::floorf(p[2] / resolution) as i32;
+    pack(ix, iy, iz)
+}
+
+#[inline]
+fn pack(ix: i32, iy: i32, iz: i32) -> Option<u32> {
+    let h = VOXEL_GRID_HALF_EXTENT;
+    if ix < -h || ix > h || iy < -h || iy > h || !(0..=h).contains(&iz) {
+        return None;
+    }
+    Some((ix + 1024) as u32 | ((iy + 1024) as u32) << 11 | (iz as u32) << 22)
+}
+
+#[inline]
+fn unpack(key: u32) -> (i32, i32, i32) {
+    ((key & 0x7ff) as i32 - 1024, ((key >> 11) & 0x7ff) as i32 - 1024, (key >> 22) as i32)
+}
+
+/// Corner (minimum) of the cube with `key`, metres.
+#[inline]
+pub fn key_corner(key: u32, resolution: f32) -> Vec3 {
+    let (x, y, z) = unpack(key);
+    [x as f32 * resolution, y as f32 * resolution, z as f32 * resolution]
+}
+
+/// Index of the voxel with `key`, if occupied.
+#[inline]
+pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
+    match pool::probe(slots, key, |i| voxels.get(i).map(|v| v.key)) {
+        Probe::Found(i) => Some(i),
+        _ => None,
+    }
+}
+
+/// Calls `f(j)` for each occupied voxel j among the 26 neighbours of the voxel with `key`.
+#[inline]
+pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl FnMut(usize)) {
+    let (x, y, z) = unpack(key);
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                if dx == 0 && dy == 0 && dz == 0 {
+                    continue;
+                }
+                if let Some(j) = pack(x + dx, y + dy, z + dz).and_then(|k| find_voxel(voxels, slots, k)) {
+                    f(j);
+                }
+            }
+        }
+    }
+}
+
+/// Counts of the voxel stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct VoxelStats {
+    /// Sampled in-range points.
+    pub points: u32,
+    /// Points that found no voxel (pool or hash full, voxel count saturated, or outside the key range).
+    pub dropped_points: u32,
+    /// Inserts refused because every hash slot was taken.
+    pub slot_overflows: u32,
+}
+
+/// Builds the voxel sums of `frame` (stage 1 and the first half of stage 2).
+pub fn voxelize(frame: &Frame<'_>, params: &Params, voxels: &mut Bounded<'_, Voxel>, slots: &mut [u16]) -> VoxelStats {
+    voxels.clear();
+    slots.fill(0);
+    let r = params.voxel_resolution;
+    let mut stats = VoxelStats::default();
+    let max_index = (DROPPED as usize).min(slots.len());
+    points::for_each_point(frame, params, |p| {
+        stats.points += 1;
+        let Some(key) = voxel_key(p.xyz, r) else {
+            stats.dropped_points += 1;
+            return;
+        };
+        let index = match pool::probe(slots, key, |i| voxels.get(i).map(|v| v.key)) {
+            Probe::Found(i) => Some(i),
+            Probe::Vacant(pos) => {
+                let mut v = Voxel::zeroed();
+                v.key = key;
+                v.supervoxel = UNLABELLED;
+                v.gaussian = UNLABELLED;
+                match voxels.push(v) {
+                    Some(i) if i < max_index => {
+                        if let Some(s) = slots.get_mut(pos) {
+                            *s = (i + 1) as u16;
+                        }
+                        Some(i)
+                    }
+                    Some(_) => {
+                        voxels.pop();
+                        None
+                    }
+                    None => None,
+                }
+            }
+            Probe::Full => {
+                stats.slot_overflows += 1;
+                None
+            }
+        };
+        let Some(v) = index.and_then(|i| voxels.get_mut(i)) else {
+            stats.dropped_points += 1;
+            return;
+        };
+        if v.count == u16::MAX {
+            stats.dropped_points += 1;
+            return;
+        }
+        let corner = key_corner(key, r);
+        v.count += 1;
+        v.sum = linalg::add(v.sum, linalg::sub(p.xyz, corner));
+        for (s, c) in v.colour_sum.iter_mut().zip(p.rgb) {
+            *s += c as u32;
+        }
+    });
+    stats
+}
+
+/// Computes every voxel's normal from its 27-neighbourhood of centroids.
+pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], resolution: f32) {
+    for i in 0..voxels.len() {
+        let Some(&v) = voxels.get(i) else { continue };
+        let c = v.centroid(resolution);
+        let mut m = Moments::about(c);
+        m.add(c, 1.0);
+        for_each_neighbour(voxels, slots, v.key, |j| {
+            if let Some(n) = voxels.get(j) {
+                m.add(n.centroid(resolution), 1.0);
+            }
+        });
+        let towards_camera = linalg::normalize_or(linalg::scale(c, -1.0), [0.0, 0.0, -1.0]);
+        let mut n = if m.weight >= 3.0 { linalg::sym_eigen(m.covariance()).normal() } else { towards_camera };
+        if linalg::dot(n, c) > 0.0 {
+            n = linalg::scale(n, -1.0);
+        }
+        if let Some(v) = voxels.get_mut(i) {
+            v.normal = [quantise_unit(n[0]), quantise_unit(n[1]), quantise_unit(n[2])];
+        }
+    }
+}
+
+#[inline]
+fn quantise_unit(x: f32) -> i16 {
+    libm::roundf(x.clamp(-1.0, 1.0) * 32767.0) as i16
+}
+
+/// Counts of the supervoxel stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SupervoxelStats {
+    /// Seeds placed.
+    pub seeds: u32,
+    /// Growth rounds run.
+    pub rounds: u32,
+    /// Supervoxels made from unseeded components.
+    pub orphan_supervoxels: u32,
+    /// Points in outlier clusters.
+    pub outlier_points: u32,
+    /// Points whose supervoxel did not fit the pool.
+    pub dropped_points: u32,
+}
+
+/// Scratch stamps during growth: 0 = untouched, r = claimed in round r, `CANDIDATE | r` = reachable in round r.
+const CANDIDATE: u16 = 0x8000;
+
+/// Storage the supervoxel stage works in.
+pub struct SupervoxelPools<'a, 'b> {
+    /// The voxels of the frame (labels are written).
+    pub voxels: &'a mut [Voxel],
+    /// The voxel hash slots.
+    pub slots: &'a [u16],
+    /// One stamp per voxel (at least as long as `voxels`).
+    pub scratch: &'a mut [u16],
+    /// Seed-cell table.
+    pub seeds: &'a mut Bounded<'b, SeedCell>,
+    /// Output supervoxels.
+    pub supervoxels: &'a mut Bounded<'b, Supervoxel>,
+}
+
+/// Grows the supervoxels of the voxels (second half of stage 2). Labels every voxel.
+pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> SupervoxelStats {
+    let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels } = pools;
+    let r = params.voxel_resolution;
+    let mut stats = SupervoxelStats::default();
+    supervoxels.clear();
+    for v in voxels.iter_mut() {
+        v.supervoxel = UNLABELLED;
+    }
+    let n = voxels.len().min(scratch.len());
+    let scratch = match scratch.get_mut(..n) {
+        Some(s) => s,
+        None => return stats,
+    };
+    scratch.fill(0);
+
+    // --- seeds: nearest voxel to the centre of each sufficiently occupied seed cube --------------------------
+    choose_seed_cells(voxels, seeds, params);
+    for i in 0..n {
+        let Some(v) = voxels.get(i).copied() else { continue };
+        let c = v.centroid(r);
+        let Some(key) = voxel_key(c, params.seed_resolution) else { continue };
+        let is_seed = seeds
+            .as_slice()
+            .iter()
+            .position(|s| s.key == key && s.voxels > 0)
+            .and_then(|k| seeds.get(k))
+            .is_some_and(|s| s.best as usize == i && s.voxels >= params.seed_min_voxels);
+        if !is_seed {
+            continue;
+        }
+        if let Some(id) = supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
+            if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
+                vox.supervoxel = id as u16;
+                *st = 1;
+            }
+            stats.seeds += 1;
+        }
+    }
+
+    // --- flow-constrained growth in rounds ------------------------------------------------------------------
+    let max_rounds = libm::ceilf(1.8 * params.seed_resolution / params.voxel_resolution) as u32;
+    let max_rounds = max_rounds.min((CANDIDATE - 2) as u32) as u16;
+    let w_c = params.color_importance;
+    let w_s = params.spatial_importance / (3.0 * params.seed_resolution * params.seed_resolution);
+    let w_n = params.normal_importance;
+    for round in 2..=max_rounds.saturating_add(1) {
+        // Pass A: mark unlabelled neighbours of last round's voxels as candidates.
+        let mut candidates = 0u32;
+        for i in 0..n {
+            if scratch.get(i).copied() != Some(round - 1) {
+                continue;
+            }
+            let Some(key) = voxels.get(i).map(|v| v.key) else { continue };
+            for_each_neighbour(voxels, slots, key, |j| {
+                if let (Some(v), Some(st)) = (voxels.get(j), scratch.get_mut(j)) {
+                    if v.supervoxel == UNLABELLED && *st == 0 {
+                        *st = CANDIDATE | round;
+                        candidates += 1;
+                    }
+                }
+            });
+        }
+        if candidates == 0 {
+            break;
+        }
+        stats.rounds = round as u32 - 1;
+        // Pass B: each candidate joins the nearest (VCCS distance) supervoxel among its labelled neighbours.
+        for i in 0..n {
+            if scratch.get(i).copied() != Some(CANDIDATE | round) {
+                continue;
+            }
+            let Some(v) = voxels.get(i).copied() else { continue };
+            let (c, nv, col) = (v.centroid(r), v.unit_normal(), v.colour());
+            let mut best: Option<(f32, u16)> = None;
+            for_each_neighbour(voxels, slots, v.key, |j| {
+                let (Some(nb), Some(&st)) = (voxels.get(j), scratch.get(j)) else { return };
+                if !is_assigned(nb.supervoxel) || st >= round {
+                    return;
+                }
+                let Some(sv) = supervoxels.get(nb.supervoxel as usize) else { return };
+                let dc = linalg::sub(col, sv.colour);
+                let ds = linalg::sub(c, sv.centroid);
+                let dn = 1.0 - linalg::dot(nv, sv.normal);
+                let d2 = w_c * linalg::dot(dc, dc) + w_s * linalg::dot(ds, ds) + w_n * dn * dn;
+                let better = match best {
+                    None => true,
+                    Some((bd, bl)) => d2 < bd || (d2 == bd && nb.supervoxel < bl),
+                };
+                if better {
+                    best = Some((d2, nb.supervoxel));
+                }
+            });
+            if let Some((_, label)) = best {
+                if let Some(sv) = supervoxels.get_mut(label as usize) {
+                    sv.add(&v, r);
+                }
+                if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
+                    vox.supervoxel = label;
+                    *st = round;
+                }
+            } else if let Some(st) = scratch.get_mut(i) {
+                *st = 0;
+            }
+        }
+        for sv in supervoxels.as_mut_slice() {
+            sv.finish_round();
+        }
+    }
+
+    // --- orphans: 26-connected components of what is left (union-find, lowest index is the root) -----------
+    for i in 0..n {
+        if let Some(st) = scratch.get_mut(i) {
+            *st = i as u16;
+        }
+    }
+    for i in 0..n {
+        let Some(v) = voxels.get(i).copied() else { continue };
+        if v.supervoxel != UNLABELLED {
+            continue;
+        }
+        for_each_neighbour(voxels, slots, v.key, |j| {
+            if voxels.get(j).is_some_and(|nb| nb.supervoxel == UNLABELLED) {
+                union(scratch, i, j);
+            }
+        });
+    }
+    // Points per component, summed at the root (the root's `gaussian` field is free until stage 3).
+    for i in 0..n {
+        let Some(v) = voxels.get(i).copied() else { continue };
+        if v.supervoxel != UNLABELLED {
+            continue;
+        }
+        let root = find(scratch, i);
+        if let Some(rv) = voxels.get_mut(root) {
+            rv.gaussian = if root == i { 0 } else { rv.gaussian };
+        }
+    }
+    for i in 0..n {
+        let Some(v) = voxels.get(i).copied() else { continue };
+        if v.supervoxel != UNLABELLED {
+            continue;
+        }
+        let root = find(scratch, i);
+        if let Some(rv) = voxels.get_mut(root) {
+            rv.gaussian = rv.gaussian.saturating_add(v.count);
+        }
+    }
+    for i in 0..n {
+        let Some(v) = voxels.get(i).copied() else { continue };
+        if v.supervoxel != UNLABELLED {
+            continue;
+        }
+        let root = find(scratch, i);
+        let Some(rv) = voxels.get(root).copied() else { continue };
+        let label = if (rv.gaussian as u32) < params.gmm_min_points {
+            stats.outlier_points += v.count as u32;
+            OUTLIER
+        } else if root == i {
+            match supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
+                Some(id) => {
+                    stats.orphan_supervoxels += 1;
+                    id as u16
+                }
+                None => DROPPED,
+            }
+        } else {
+            let label = rv.supervoxel;
+            if let Some(sv) = supervoxels.get_mut(label as usize) {
+                sv.add(&v, r);
+            }
+            label
+        };
+        if label == DROPPED {
+            stats.dropped_points += v.count as u32;
+        }
+        if let Some(vox) = voxels.get_mut(i) {
+            vox.supervoxel = label;
+        }
+    }
+    for v in voxels.iter_mut() {
+        v.gaussian = UNLABELLED;
+    }
+    for sv in supervoxels.as_mut_slice() {
+        sv.finish_round();
+    }
+    stats
+}
+
+/// Fills the seed-cell table: voxel count and nearest-to-centre voxel per `seed_resolution` cube.
+fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params: &Params) {
+    seeds.clear();
+    let (r, rs) = (params.voxel_resolution, params.seed_resolution);
+    for (i, v) in voxels.iter().enumerate() {
+        let c = v.centroid(r);
+        let Some(key) = voxel_key(c, rs) else { continue };
+        let centre = linalg::add(key_corner(key, rs), [0.5 * rs; 3]);
+        let d = linalg::sub(c, centre);
+        let d2 = linalg::dot(d, d);
+        // Seed cells are few (tens per frame): a linear search is cheaper than a second hash.
+        match seeds.as_mut_slice().iter_mut().find(|s| s.key == key) {
+            Some(cell) => {
+                cell.voxels = cell.voxels.saturating_add(1);
+                if d2 < cell.best_d2 {
+                    cell.best_d2 = d2;
+                    cell.best = i as u16;
+                }
+            }
+            None => {
+                let _ = seeds.push(SeedCell { key, voxels: 1, best: i as u16, best_d2: d2 });
+            }
+        }
+    }
+}
+
+/// Root of `i` with path halving (bounded by the table length).
+fn find(parent: &mut [u16], mut i: usize) -> usize {
+    for _ in 0..parent.len() {
+        let p = parent.get(i).copied().unwrap_or(i as u16) as usize;
+        if p == i {
+            return i;
+        }
+        let gp = parent.get(p).copied().unwrap_or(p as u16);
+        if let Some(slot) = parent.get_mut(i) {
+            *slot = gp;
+        }
+        i = gp as usize;
+    }
+    i
+}
+
+/// Joins the sets of `a` and `b`; the lower root index becomes the root.
+fn union(parent: &mut [u16], a: usize, b: usize) {
+    let (ra, rb) = (find(parent, a), find(parent, b));
+    if ra == rb {
+        return;
+    }
+    let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
+    if let Some(slot) = parent.get_mut(hi) {
+        *slot = lo as u16;
+    }
+}

@@ -1,0 +1,302 @@
+//! `m2smap run`: replays a dataset through the core and writes `summary.json` and `frames.jsonl` (SPEC §6).
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{anyhow, Context, Result};
+use bytemuck::Zeroable;
+use m2smap_core::{FrameReport, HostStorage, Mapper, McuStorage, Params, PoolId, Profile, Variant};
+use serde::Serialize;
+
+use crate::dataset::Dataset;
+
+/// Which capacity profile to run the core with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ProfileChoice {
+    /// Large pools (workstation).
+    Host,
+    /// The 512 KiB microcontroller profile.
+    Mcu,
+}
+
+/// Options of `m2smap run`.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Dataset folder.
+    pub dataset: PathBuf,
+    /// Output folder.
+    pub out: PathBuf,
+    /// Variant (overrides the config file's).
+    pub variant: Option<Variant>,
+    /// Process at most this many frames.
+    pub frames: Option<usize>,
+    /// JSON file with `Params` fields to override.
+    pub config: Option<PathBuf>,
+    /// Camera preset name or `camera.json` path.
+    pub camera: Option<String>,
+    /// Capacity profile.
+    pub profile: ProfileChoice,
+    /// Show a progress bar (on a terminal).
+    pub progress: bool,
+}
+
+/// Primitive counts of a frame or their means (null until the stage producing them exists).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Primitives {
+    /// Bounded planes.
+    pub plane: Option<f64>,
+    /// Superquadrics.
+    pub sq: Option<f64>,
+    /// Gaussian primitives.
+    pub gmm: Option<f64>,
+    /// All primitives.
+    pub total: Option<f64>,
+}
+
+/// Use of one pool.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct PoolRecord {
+    /// Most entries in use.
+    pub peak: usize,
+    /// Capacity.
+    pub capacity: usize,
+    /// Refused insertions.
+    pub overflow_events: u64,
+}
+
+/// Per-frame values (the keys of SPEC §6 plus the stage counts), one line of `frames.jsonl`.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameRecord {
+    /// Frame index in the run, from 0.
+    pub index: usize,
+    /// File stem of the frame.
+    pub stem: String,
+    /// Core pipeline time, milliseconds.
+    pub ms: f64,
+    /// Sampled points.
+    pub points: u32,
+    /// Occupied voxels.
+    pub voxels: u32,
+    /// Supervoxels.
+    pub supervoxels: u32,
+    /// Gaussians C_g.
+    pub gaussians: u32,
+    /// Points in outlier clusters.
+    pub outlier_points: u32,
+    /// Points lost to full pools.
+    pub dropped_points: u32,
+    /// Primitive counts.
+    pub primitives: Primitives,
+    /// Wire payload, bytes.
+    pub payload_bytes: Option<f64>,
+    /// Generated-to-real RMSE, metres.
+    pub g2r_rmse_m: Option<f64>,
+    /// Real-to-generated RMSE, metres.
+    pub r2g_rmse_m: Option<f64>,
+    /// Gaussians per fused cluster.
+    pub r_c: Option<f64>,
+    /// Semantic fusion consistency.
+    pub a_s: Option<f64>,
+    /// Adhesion cases.
+    pub n_adh: Option<f64>,
+    /// Mean SQ rotation jump, degrees.
+    pub j_sq_deg: Option<f64>,
+    /// Pool use.
+    pub pools: BTreeMap<String, PoolRecord>,
+    /// Overflow events of all pools.
+    pub overflow_events: u64,
+}
+
+/// `summary.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    /// Frames processed.
+    pub frames: usize,
+    /// Variant name.
+    pub variant: String,
+    /// Capacity profile.
+    pub profile: String,
+    /// 1 / median core time per frame, Hz.
+    pub hz: f64,
+    /// Median core time per frame, ms.
+    pub ms_per_frame_median: f64,
+    /// Mean sampled points per frame.
+    pub points: f64,
+    /// Mean voxels per frame.
+    pub voxels: f64,
+    /// Mean supervoxels per frame.
+    pub supervoxels: f64,
+    /// Mean Gaussians per frame.
+    pub gaussians: f64,
+    /// Mean primitive counts.
+    pub primitives: Primitives,
+    /// Mean payload, bytes.
+    pub payload_bytes: Option<f64>,
+    /// Mean G2R RMSE, metres.
+    pub g2r_rmse_m: Option<f64>,
+    /// Mean R2G RMSE, metres.
+    pub r2g_rmse_m: Option<f64>,
+    /// Mean R_c.
+    pub r_c: Option<f64>,
+    /// Mean A_s.
+    pub a_s: Option<f64>,
+    /// Mean N_adh.
+    pub n_adh: Option<f64>,
+    /// Mean J_sq, degrees.
+    pub j_sq_deg: Option<f64>,
+    /// Peak use of every pool over the run.
+    pub pools: BTreeMap<String, PoolRecord>,
+    /// Overflow events over the run.
+    pub overflow_events: u64,
+}
+
+/// Reads `Params` from a JSON file of overrides (unknown keys are an error).
+pub fn load_params(path: Option<&Path>) -> Result<Params> {
+    let Some(path) = path else { return Ok(Params::default()) };
+    let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let params: Params = serde_json::from_str(&text).map_err(|e| anyhow!("{}: bad parameters: {e}", path.display()))?;
+    params.validate().map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    Ok(params)
+}
+
+/// Median of a list (NaN-free), 0 when empty.
+pub fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = values.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    if n == 0 {
+        0.0
+    } else {
+        s / n as f64
+    }
+}
+
+/// Pool records of a frame report.
+pub fn pool_records(report: &FrameReport) -> BTreeMap<String, PoolRecord> {
+    PoolId::ALL
+        .iter()
+        .zip(report.pools.iter())
+        .map(|(id, u)| {
+            (id.name().to_owned(), PoolRecord { peak: u.peak, capacity: u.capacity, overflow_events: u.overflow_events as u64 })
+        })
+        .collect()
+}
+
+/// Runs the mapper over a dataset and writes the outputs. Returns the summary.
+pub fn run(opts: &RunOptions) -> Result<Summary> {
+    let dataset = Dataset::open(&opts.dataset, opts.camera.as_deref())?;
+    let mut params = load_params(opts.config.as_deref())?;
+    if let Some(v) = opts.variant {
+        params.variant = v;
+    }
+    fs::create_dir_all(&opts.out).with_context(|| format!("{}: cannot create", opts.out.display()))?;
+    let records = match opts.profile {
+        ProfileChoice::Host => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<HostStorage>())?,
+        ProfileChoice::Mcu => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<McuStorage>())?,
+    };
+    let summary = summarise(&records, params.variant, opts.profile);
+    let path = opts.out.join("summary.json");
+    fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n").with_context(|| format!("{}: cannot write", path.display()))?;
+    Ok(summary)
+}
+
+fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOptions, storage: &mut P) -> Result<Vec<FrameRecord>> {
+    let mut mapper = Mapper::new(storage, params).map_err(|e| anyhow!("parameters: {e}"))?;
+    let n = opts.frames.map_or(dataset.frames.len(), |k| k.min(dataset.frames.len()));
+    let jsonl_path = opts.out.join("frames.jsonl");
+    let mut jsonl = std::io::BufWriter::new(
+        fs::File::create(&jsonl_path).with_context(|| format!("{}: cannot create", jsonl_path.display()))?,
+    );
+    let bar = if opts.progress { indicatif::ProgressBar::new(n as u64) } else { indicatif::ProgressBar::hidden() };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {msg} [{elapsed} < {eta}]")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let mut records = Vec::with_capacity(n);
+    for (index, fref) in dataset.frames.iter().take(n).enumerate() {
+        let loaded = dataset.load(index)?;
+        let start = Instant::now();
+        let report = *mapper
+            .process(loaded.view(&dataset.camera), None)
+            .map_err(|e| anyhow!("{}: {e}", fref.depth.display()))?;
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        let record = FrameRecord {
+            index,
+            stem: fref.stem.clone(),
+            ms,
+            points: report.points,
+            voxels: report.voxels,
+            supervoxels: report.supervoxels,
+            gaussians: report.gaussians,
+            outlier_points: report.outlier_points,
+            dropped_points: report.dropped_points,
+            primitives: Primitives::default(),
+            payload_bytes: None,
+            g2r_rmse_m: None,
+            r2g_rmse_m: None,
+            r_c: None,
+            a_s: None,
+            n_adh: None,
+            j_sq_deg: None,
+            pools: pool_records(&report),
+            overflow_events: report.overflow_events as u64,
+        };
+        serde_json::to_writer(&mut jsonl, &record)?;
+        jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
+        bar.set_message(format!("{} Gaussians, {:.1} ms", report.gaussians, ms));
+        bar.inc(1);
+        records.push(record);
+    }
+    bar.finish_and_clear();
+    jsonl.flush().with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
+    Ok(records)
+}
+
+fn summarise(records: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> Summary {
+    let ms = median(&records.iter().map(|r| r.ms).collect::<Vec<_>>());
+    let mut pools: BTreeMap<String, PoolRecord> = BTreeMap::new();
+    for r in records {
+        for (name, p) in &r.pools {
+            let e = pools.entry(name.clone()).or_default();
+            e.peak = e.peak.max(p.peak);
+            e.capacity = p.capacity;
+            e.overflow_events += p.overflow_events;
+        }
+    }
+    Summary {
+        frames: records.len(),
+        variant: variant.name().to_owned(),
+        profile: match profile {
+            ProfileChoice::Host => "host",
+            ProfileChoice::Mcu => "mcu",
+        }
+        .to_owned(),
+        hz: if ms > 0.0 { 1e3 / ms } else { 0.0 },
+        ms_per_frame_median: ms,
+        points: mean(records.iter().map(|r| r.points as f64)),
+        voxels: mean(records.iter().map(|r| r.voxels as f64)),
+        supervoxels: mean(records.iter().map(|r| r.supervoxels as f64)),
+        gaussians: mean(records.iter().map(|r| r.gaussians as f64)),
+        primitives: Primitives::default(),
+        payload_bytes: None,
+        g2r_rmse_m: None,
+        r2g_rmse_m: None,
+        r_c: None,
+        a_s: None,
+        n_adh: None,
+        j_sq_deg: None,
+        pools,
+        overflow_events: records.iter().map(|r| r.overflow_events).sum(),
+    }
+}
