@@ -3,13 +3,19 @@
 //!
 //! **Split rule (decided here, SPEC §2).** A cluster (a set of voxels of one supervoxel) is split in two when
 //! all of these hold:
-//! - it is not compact: its thickness σ2 exceeds `gmm_max_thickness` (1 cm; it bends or spans two surfaces)
-//!   or its largest principal scale σ0 exceeds `gmm_max_extent` (0.15 m; it is too large to be local);
+//! - it is not compact: its thickness σ2 exceeds `gmm_max_thickness` (1 cm; it bends or spans two surfaces),
+//!   its voxel normals spread more than `gmm_max_normal_spread` (a fold or a junction of two surfaces that is
+//!   still thin, such as a narrow strip of wall above a floor), or its largest principal scale σ0 exceeds
+//!   `gmm_max_extent` (0.15 m; it is too large to be local);
 //! - it has at least `2 · gmm_min_points` points and at least two voxels;
 //! - it is fewer than `gmm_max_depth` splits below its supervoxel.
 //!
-//! **How it splits.** 2-means on the voxel centroids weighted by their point counts, seeded at μ ± σ0·e0
-//! (along the principal axis), `gmm_kmeans_iters` Lloyd iterations. The split is kept only when both halves
+//! **How it splits.** 2-means on (voxel centroid, voxel normal) weighted by point counts, with the distance
+//! d² = ‖Δp‖² + (`gmm_normal_weight`·‖Δn‖)² and `gmm_kmeans_iters` Lloyd iterations. A cluster split for its
+//! normal spread is first seeded at the two voxels whose normals differ most (the one farthest from the mean
+//! normal, then the one farthest from that); then at μ ± σ0·e0 along the principal axis; and a thick cluster
+//! last at μ ± σ2·e2 across its thickness (two parallel layers, such as a slab on a floor). The first seeding
+//! that gives two large enough halves is used. The split is kept only when both halves
 //! have at least `gmm_min_points` points; otherwise the cluster is a leaf. Leaves are the Gaussians.
 //!
 //! Split decisions use voxel centroids (within-voxel spread is averaged out, so sensor noise does not force
@@ -188,10 +194,25 @@ fn process(
     let (m, points) = range_moments(range, voxels, r);
     let eig = linalg::sym_eigen(m.covariance());
     let sigma = eig.sigmas();
-    let compact = sigma[2] <= params.gmm_max_thickness && sigma[0] <= params.gmm_max_extent;
+    let (mean_normal, spread) = normal_spread(range, voxels);
+    let bent = spread > params.gmm_max_normal_spread;
+    let compact = sigma[2] <= params.gmm_max_thickness && sigma[0] <= params.gmm_max_extent && !bent;
     let splittable = task.depth < params.gmm_max_depth && points >= 2 * params.gmm_min_points && range.len() >= 2;
     if !compact && splittable {
-        if let Some(mid) = two_means_partition(range, voxels, m.mean(), eig.vectors[0], sigma[0], params) {
+        // Candidate seedings, tried in order until one gives two halves of at least `gmm_min_points`: the two
+        // most different normals (a fold), the principal axis (too long), the thickness axis (two layers).
+        let mean = m.mean();
+        let along = |axis: Vec3, s: f32| {
+            let offset = linalg::scale(axis, s);
+            [Feature { p: linalg::add(mean, offset), n: mean_normal }, Feature { p: linalg::sub(mean, offset), n: mean_normal }]
+        };
+        let candidates = [
+            bent.then(|| normal_seeds(range, voxels, mean_normal, r)),
+            Some(along(eig.vectors[0], sigma[0])),
+            (sigma[2] > params.gmm_max_thickness).then(|| along(eig.vectors[2], sigma[2])),
+        ];
+        let split = candidates.into_iter().flatten().find_map(|seeds| two_means_partition(range, voxels, seeds, params));
+        if let Some(mid) = split {
             let mid = task.start + mid as u16;
             let right = SplitTask { start: mid, end: task.end, depth: task.depth + 1, supervoxel: task.supervoxel };
             let left = SplitTask { start: task.start, end: mid, depth: task.depth + 1, supervoxel: task.supervoxel };
@@ -235,35 +256,82 @@ fn process(
     }
 }
 
-/// Splits `range` in place into two groups by 2-means; returns the size of the first group, or `None` when
-/// either group would have fewer than `gmm_min_points` points.
-fn two_means_partition(
-    range: &mut [u16],
-    voxels: &[Voxel],
-    mean: Vec3,
-    axis: Vec3,
-    sigma0: f32,
-    params: &Params,
-) -> Option<usize> {
-    let r = params.voxel_resolution;
-    let mut centres = [linalg::add(mean, linalg::scale(axis, sigma0)), linalg::sub(mean, linalg::scale(axis, sigma0))];
-    let nearer_first = |c: Vec3, centres: &[Vec3; 2]| {
-        let (d0, d1) = (linalg::sub(c, centres[0]), linalg::sub(c, centres[1]));
-        linalg::dot(d0, d0) <= linalg::dot(d1, d1)
-    };
-    for _ in 0..params.gmm_kmeans_iters {
-        let mut acc = [Moments::about(centres[0]), Moments::about(centres[1])];
+/// A point in the 2-means feature space: position (metres) and unit normal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Feature {
+    p: Vec3,
+    n: Vec3,
+}
+
+impl Feature {
+    fn of(v: &Voxel, r: f32) -> Self {
+        Feature { p: v.centroid(r), n: v.unit_normal() }
+    }
+
+    fn distance2(&self, other: &Feature, normal_weight: f32) -> f32 {
+        let (dp, dn) = (linalg::sub(self.p, other.p), linalg::sub(self.n, other.n));
+        linalg::dot(dp, dp) + normal_weight * normal_weight * linalg::dot(dn, dn)
+    }
+}
+
+/// Point-weighted mean normal (unit) of the range and the spread mean(1 − |n_v · n̄|).
+fn normal_spread(range: &[u16], voxels: &[Voxel]) -> (Vec3, f32) {
+    let mut sum = [0.0f32; 3];
+    let mut weight = 0.0f32;
+    for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+        sum = linalg::add(sum, linalg::scale(v.unit_normal(), v.count as f32));
+        weight += v.count as f32;
+    }
+    let mean = linalg::normalize_or(sum, [0.0, 0.0, -1.0]);
+    let mut spread = 0.0f32;
+    for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+        spread += v.count as f32 * (1.0 - libm::fabsf(linalg::dot(v.unit_normal(), mean)));
+    }
+    (mean, if weight > 0.0 { spread / weight } else { 0.0 })
+}
+
+/// Seeds for a bent cluster: the voxel whose normal is farthest from the mean, then the one farthest from it.
+fn normal_seeds(range: &[u16], voxels: &[Voxel], mean_normal: Vec3, r: f32) -> [Feature; 2] {
+    let farthest_from = |n: Vec3| {
+        let mut best: Option<(f32, Feature)> = None;
         for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
-            let c = v.centroid(r);
-            let k = if nearer_first(c, &centres) { 0 } else { 1 };
-            if let Some(a) = acc.get_mut(k) {
-                a.add(c, v.count as f32);
+            let d = linalg::dot(v.unit_normal(), n);
+            if best.is_none_or(|(bd, _)| d < bd) {
+                best = Some((d, Feature::of(v, r)));
+            }
+        }
+        best.map(|(_, f)| f)
+    };
+    let a = farthest_from(mean_normal).unwrap_or(Feature { p: [0.0; 3], n: mean_normal });
+    let b = farthest_from(a.n).unwrap_or(a);
+    [a, b]
+}
+
+/// Splits `range` in place into two groups by 2-means from `seeds`; returns the size of the first group, or
+/// `None` when either group would have fewer than `gmm_min_points` points.
+fn two_means_partition(range: &mut [u16], voxels: &[Voxel], seeds: [Feature; 2], params: &Params) -> Option<usize> {
+    let r = params.voxel_resolution;
+    let w = params.gmm_normal_weight;
+    let mut centres = seeds;
+    let nearer_first = |f: &Feature, c: &[Feature; 2]| f.distance2(&c[0], w) <= f.distance2(&c[1], w);
+    for _ in 0..params.gmm_kmeans_iters {
+        let mut acc = [Moments::about(centres[0].p), Moments::about(centres[1].p)];
+        let mut normals = [[0.0f32; 3]; 2];
+        for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+            let f = Feature::of(v, r);
+            let k = if nearer_first(&f, &centres) { 0 } else { 1 };
+            if let (Some(a), Some(n)) = (acc.get_mut(k), normals.get_mut(k)) {
+                a.add(f.p, v.count as f32);
+                *n = linalg::add(*n, linalg::scale(f.n, v.count as f32));
             }
         }
         if acc[0].weight == 0.0 || acc[1].weight == 0.0 {
             return None;
         }
-        let updated = [acc[0].mean(), acc[1].mean()];
+        let updated = [
+            Feature { p: acc[0].mean(), n: linalg::normalize_or(normals[0], centres[0].n) },
+            Feature { p: acc[1].mean(), n: linalg::normalize_or(normals[1], centres[1].n) },
+        ];
         if updated == centres {
             break;
         }
@@ -275,7 +343,7 @@ fn two_means_partition(
     let mut second_points = 0u32;
     while lo < hi {
         let v = range.get(lo).and_then(|&i| voxels.get(i as usize))?;
-        if nearer_first(v.centroid(r), &centres) {
+        if nearer_first(&Feature::of(v, r), &centres) {
             first_points += v.count as u32;
             lo += 1;
         } else {

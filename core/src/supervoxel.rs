@@ -161,8 +161,9 @@ fn pack(ix: i32, iy: i32, iz: i32) -> Option<u32> {
     Some((ix + 1024) as u32 | ((iy + 1024) as u32) << 11 | (iz as u32) << 22)
 }
 
+/// Integer cube coordinates (x, y, z) of a packed key.
 #[inline]
-fn unpack(key: u32) -> (i32, i32, i32) {
+pub fn unpack(key: u32) -> (i32, i32, i32) {
     ((key & 0x7ff) as i32 - 1024, ((key >> 11) & 0x7ff) as i32 - 1024, (key >> 22) as i32)
 }
 

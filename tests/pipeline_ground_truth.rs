@@ -1,0 +1,173 @@
+//! Stages 1–3 against ground truth: a procedural frame of planes and boxes with known surfaces per pixel.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+
+use m2smap::synth::{Scene, SynthFrame};
+use m2smap_core::supervoxel::{is_assigned, unpack, OUTLIER};
+use m2smap_core::{Gaussian, HostStorage, Mapper, Params};
+
+struct Outcome {
+    gaussians: Vec<Gaussian>,
+    /// Per Gaussian: support points per true surface.
+    support: Vec<HashMap<u16, u32>>,
+    points: u32,
+    outlier_points: u32,
+    dropped_points: u32,
+    labelled_points: u32,
+    /// Supervoxel of each voxel key.
+    voxel_labels: HashMap<u32, u16>,
+    supervoxels: usize,
+}
+
+fn map_frame(scene: &Scene, frame: &SynthFrame) -> Outcome {
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+    let view = frame.frame.view(&scene.camera);
+    let report = *mapper.process(view, None).unwrap();
+    let checked = mapper.check(view, None).unwrap();
+    let mut support = vec![HashMap::new(); mapper.gaussians().len()];
+    let mut labelled_points = 0;
+    let w = scene.camera.width as usize;
+    mapper.for_each_labelled_point(&checked, |p, v| {
+        let v = v.expect("every sampled point has a voxel");
+        if is_assigned(v.gaussian) {
+            labelled_points += 1;
+            let surface = frame.surface[p.v as usize * w + p.u as usize];
+            *support[v.gaussian as usize].entry(surface).or_insert(0) += 1;
+        } else {
+            assert_eq!(v.supervoxel, OUTLIER, "an unlabelled point must be in an outlier cluster");
+        }
+    });
+    Outcome {
+        gaussians: mapper.gaussians().to_vec(),
+        support,
+        points: report.points,
+        outlier_points: report.outlier_points,
+        dropped_points: report.dropped_points,
+        labelled_points,
+        voxel_labels: mapper.voxels().iter().map(|v| (v.key, v.supervoxel)).collect(),
+        supervoxels: mapper.supervoxels().len(),
+    }
+}
+
+/// Frames of the tabletop scene: boxes standing apart on a floor before a wall, so every surface can be told
+/// apart by geometry alone. (Touching coplanar faces and a slab lying flat on the floor, as in the `shelf`
+/// scene, cannot be separated without masks: that is the semantics issue's test.)
+fn scenes() -> Vec<(Scene, SynthFrame)> {
+    ["tabletop"]
+        .iter()
+        .flat_map(|name| {
+            let scene = Scene::named(name).unwrap();
+            [0usize, 7].map(|k| (scene.clone(), scene.render(k, None)))
+        })
+        .collect()
+}
+
+#[test]
+fn gaussian_supports_lie_on_one_surface() {
+    for (scene, frame) in scenes() {
+        let out = map_frame(&scene, &frame);
+        let (mut pure_points, mut total) = (0u32, 0u32);
+        for (g, counts) in out.support.iter().enumerate() {
+            let n: u32 = counts.values().sum();
+            let dominant = counts.values().copied().max().unwrap_or(0);
+            assert_eq!(n, out.gaussians[g].count, "support count of Gaussian {g}");
+            let purity = dominant as f64 / n as f64;
+            // A 3 cm voxel straddling a box edge or a box-floor contact carries points of both surfaces into the
+            // Gaussian that owns it; such Gaussians stay dominated by one surface.
+            // A 3 cm voxel straddling a box edge, a box-floor contact or the floor-wall junction carries points of
+            // both surfaces into one Gaussian; only pieces too small to split further may stay mixed.
+            if n >= 100 {
+                assert!(purity >= 0.8, "{}: Gaussian {g} ({n} points) mixes surfaces {counts:?}", scene.name);
+            }
+            pure_points += dominant;
+            total += n;
+        }
+        let overall = pure_points as f64 / total as f64;
+        println!("{}: {} Gaussians, point-weighted purity {overall:.4}", scene.name, out.gaussians.len());
+        assert!(overall >= 0.99, "{}: only {overall:.4} of support points lie on their Gaussian's surface", scene.name);
+    }
+}
+
+#[test]
+fn gaussian_means_lie_on_true_surfaces() {
+    for (scene, frame) in scenes() {
+        let out = map_frame(&scene, &frame);
+        let mut worst = 0.0f64;
+        for g in &out.gaussians {
+            let m = g.mean.map(f64::from);
+            let world = frame.pose.apply(m);
+            let d = scene.surfaces.iter().map(|s| s.distance(world)).fold(f64::INFINITY, f64::min);
+            worst = worst.max(d);
+            assert!(d <= 0.01, "{}: Gaussian mean {m:?} is {d:.4} m from every surface", scene.name);
+        }
+        println!("{}: worst mean-to-surface distance {worst:.4} m", scene.name);
+    }
+}
+
+#[test]
+fn supports_cover_the_sampled_points() {
+    for (scene, frame) in scenes() {
+        let out = map_frame(&scene, &frame);
+        assert_eq!(out.dropped_points, 0, "the host profile must not drop points on a 640x480 frame");
+        assert_eq!(out.labelled_points + out.outlier_points, out.points);
+        let sum: u32 = out.gaussians.iter().map(|g| g.count).sum();
+        assert_eq!(sum, out.labelled_points, "Gaussian supports must partition the labelled points");
+        let outlier_share = out.outlier_points as f64 / out.points as f64;
+        assert!(outlier_share < 0.002, "{}: {outlier_share:.4} of points are outliers", scene.name);
+    }
+}
+
+#[test]
+fn supervoxels_are_connected() {
+    for (scene, frame) in scenes() {
+        let out = map_frame(&scene, &frame);
+        let mut members: HashMap<u16, Vec<u32>> = HashMap::new();
+        for (&key, &sv) in &out.voxel_labels {
+            if is_assigned(sv) {
+                members.entry(sv).or_default().push(key);
+            }
+        }
+        assert_eq!(members.len(), out.supervoxels, "every supervoxel has voxels");
+        for (sv, keys) in members {
+            let set: HashSet<(i32, i32, i32)> = keys.iter().map(|&k| unpack(k)).collect();
+            let start = *set.iter().min().unwrap();
+            let mut seen = HashSet::from([start]);
+            let mut queue = VecDeque::from([start]);
+            while let Some((x, y, z)) = queue.pop_front() {
+                for dx in -1..=1 {
+                    for dy in -1..=1 {
+                        for dz in -1..=1 {
+                            let n = (x + dx, y + dy, z + dz);
+                            if set.contains(&n) && seen.insert(n) {
+                                queue.push_back(n);
+                            }
+                        }
+                    }
+                }
+            }
+            assert_eq!(seen.len(), set.len(), "{}: supervoxel {sv} is not 26-connected", scene.name);
+        }
+    }
+}
+
+#[test]
+fn same_input_gives_identical_output() {
+    let scene = Scene::named("shelf").unwrap();
+    let frame = scene.render(3, Some(9));
+    let a = map_frame(&scene, &frame);
+    let b = map_frame(&scene, &frame);
+    assert_eq!(a.voxel_labels, b.voxel_labels);
+    assert_eq!(a.gaussians.len(), b.gaussians.len());
+    for (x, y) in a.gaussians.iter().zip(&b.gaussians) {
+        let bits = |g: &Gaussian| {
+            let mut v: Vec<u32> = g.mean.iter().chain(&g.covariance).chain(&g.eigenvalues).map(|f| f.to_bits()).collect();
+            v.push(g.count);
+            v
+        };
+        assert_eq!(bits(x), bits(y));
+    }
+    // A different sensor-noise seed gives a different frame, and so a different result.
+    let c = map_frame(&scene, &scene.render(3, Some(10)));
+    assert_ne!(a.voxel_labels, c.voxel_labels);
+}
