@@ -1,0 +1,291 @@
+//! The `m2smap` command on real data, on synthetic data, and on broken datasets.
+
+mod common;
+
+use std::fs;
+use std::path::Path;
+
+use common::{m2smap, shared_data};
+use m2smap::dataset::{associate, parse_list, pose_at, read_list, read_trajectory, Dataset, Layout};
+
+fn run_ok(dataset: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["run", dataset.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    let o = m2smap(&args);
+    assert!(o.status.success(), "m2smap run failed: {}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+}
+
+fn frames_jsonl(out: &Path) -> Vec<serde_json::Value> {
+    fs::read_to_string(out.join("frames.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+}
+
+/// The keys SPEC §6 names for summary.json.
+const SUMMARY_KEYS: [&str; 15] = [
+    "frames", "variant", "hz", "ms_per_frame_median", "primitives", "payload_bytes", "g2r_rmse_m", "r2g_rmse_m",
+    "r_c", "a_s", "n_adh", "j_sq_deg", "pools", "overflow_events", "profile",
+];
+
+fn check_run(summary: &serde_json::Value, frames: &[serde_json::Value], expected_frames: usize) {
+    for k in SUMMARY_KEYS {
+        assert!(summary.get(k).is_some(), "summary.json lacks {k}");
+    }
+    for k in ["plane", "sq", "gmm", "total"] {
+        assert!(summary["primitives"].get(k).is_some(), "primitives lacks {k}");
+    }
+    assert_eq!(summary["frames"].as_u64().unwrap() as usize, expected_frames);
+    assert_eq!(frames.len(), expected_frames);
+    assert!(summary["hz"].as_f64().unwrap() > 0.0);
+    for f in frames {
+        assert!(f["supervoxels"].as_u64().unwrap() > 0);
+        assert!(f["gaussians"].as_u64().unwrap() >= f["supervoxels"].as_u64().unwrap());
+        let pools = f["pools"].as_object().unwrap();
+        for name in ["voxels", "voxel_slots", "voxel_scratch", "seed_cells", "supervoxels", "split_stack", "gaussians"] {
+            let p = &pools[name];
+            assert!(p["peak"].as_u64().unwrap() <= p["capacity"].as_u64().unwrap(), "{name}");
+        }
+        assert_eq!(pools["gaussians"]["peak"], f["gaussians"]);
+    }
+}
+
+#[test]
+fn maps_every_cabinet_frame() {
+    let Some(data) = shared_data("tum_fr3_cabinet") else { return };
+    let out = tempfile::tempdir().unwrap();
+    let summary = run_ok(&data, out.path(), &[]);
+    check_run(&summary, &frames_jsonl(out.path()), 58);
+    assert_eq!(summary["overflow_events"], 0);
+    // The mcu profile must also fit every cabinet frame without losing a point.
+    let out_mcu = tempfile::tempdir().unwrap();
+    let mcu = run_ok(&data, out_mcu.path(), &["--profile", "mcu"]);
+    assert_eq!(mcu["overflow_events"], 0);
+    assert_eq!(mcu["gaussians"], summary["gaussians"], "profiles must not change results when nothing overflows");
+}
+
+#[test]
+fn maps_every_redkitchen_frame() {
+    let Some(data) = shared_data("7scenes_redkitchen") else { return };
+    let out = tempfile::tempdir().unwrap();
+    let summary = run_ok(&data, out.path(), &[]);
+    check_run(&summary, &frames_jsonl(out.path()), 300);
+}
+
+#[test]
+fn reads_the_real_datasets() {
+    if let Some(data) = shared_data("tum_fr3_cabinet") {
+        let d = Dataset::open(&data, None).unwrap();
+        assert_eq!(d.layout, Layout::Tum);
+        assert_eq!(d.frames.len(), 58);
+        assert_eq!((d.camera.fx, d.camera.depth_scale), (535.4, 5000.0), "fr3 preset from the folder name");
+        assert!(d.frames.iter().all(|f| f.pose.is_some()));
+        let f = d.load(0).unwrap();
+        assert_eq!((f.width, f.height, f.depth.len(), f.colour.len()), (640, 480, 307_200, 921_600));
+    }
+    if let Some(data) = shared_data("7scenes_redkitchen") {
+        let d = Dataset::open(&data, None).unwrap();
+        assert_eq!(d.layout, Layout::SevenScenes);
+        assert_eq!(d.frames.len(), 300);
+        assert_eq!((d.camera.fx, d.camera.cx, d.camera.depth_scale), (585.0, 320.0, 1000.0));
+        let p = d.frames[0].pose.unwrap();
+        assert!((p.t[0] + 0.3404563).abs() < 1e-6, "translation from the 4x4 pose");
+        let r = p.rotation();
+        assert!((r[0][0] - 0.9093129).abs() < 1e-4 && (r[1][0] + 0.2724862).abs() < 1e-4, "rotation from the 4x4 pose");
+        let f = d.load(0).unwrap();
+        assert!(!f.depth.contains(&u16::MAX), "65535 is invalid depth and becomes 0");
+    }
+}
+
+#[test]
+fn association_reproduces_the_benchmark_lists() {
+    let Some(lists) = shared_data("tum_lists") else { return };
+    for name in ["fr3_walking_rpy_assoc.txt", "fr1_teddy_assoc_ScaleORB.txt"] {
+        let pairs = read_list(&lists.join(name), 3).unwrap();
+        let rgb: Vec<f64> = pairs.iter().map(|e| e.timestamp).collect();
+        let depth: Vec<f64> = pairs.iter().map(|e| e.fields[1].parse().unwrap()).collect();
+        let got = associate(&rgb, &depth, 0.02);
+        let expected: Vec<(usize, usize)> = (0..pairs.len()).collect::<Vec<_>>().iter().map(|&i| (i, i)).collect();
+        assert_eq!(got, expected, "{name}");
+    }
+    let rgb = read_list(&lists.join("fr1_xyz_rgb.txt"), 1).unwrap();
+    let depth = read_list(&lists.join("fr1_xyz_depth.txt"), 1).unwrap();
+    let (ta, tb): (Vec<f64>, Vec<f64>) =
+        (rgb.iter().map(|e| e.timestamp).collect(), depth.iter().map(|e| e.timestamp).collect());
+    let pairs = associate(&ta, &tb, 0.02);
+    assert!(pairs.len() >= 790, "fr1/xyz has 798 rgb frames; {} associated", pairs.len());
+    let mut used = std::collections::HashSet::new();
+    for w in pairs.windows(2) {
+        assert!(ta[w[0].0] < ta[w[1].0], "sorted by rgb time");
+    }
+    for &(i, j) in &pairs {
+        assert!((ta[i] - tb[j]).abs() < 0.02);
+        assert!(used.insert(j), "depth {j} used twice");
+    }
+}
+
+#[test]
+fn poses_are_interpolated_between_ground_truth_rows() {
+    let Some(lists) = shared_data("tum_lists") else { return };
+    let traj = read_trajectory(&lists.join("fr1_xyz_groundtruth.txt")).unwrap();
+    let (t0, p0) = traj[100];
+    let (t1, p1) = traj[101];
+    assert_eq!(pose_at(&traj, t0).unwrap().t, p0.t, "exact row");
+    let mid = pose_at(&traj, 0.5 * (t0 + t1)).unwrap();
+    for k in 0..3 {
+        assert!((mid.t[k] - 0.5 * (p0.t[k] + p1.t[k])).abs() < 1e-6);
+    }
+    let qn: f64 = mid.q.iter().map(|x| x * x).sum();
+    assert!((qn - 1.0).abs() < 1e-9);
+    assert!(pose_at(&traj, traj[0].0 - 5.0).is_none(), "long before the trajectory");
+}
+
+#[test]
+fn malformed_list_lines_name_their_line() {
+    let err = parse_list("# comment\n1.0 rgb/a.png\nnot-a-time rgb/b.png\n", 1).unwrap_err().to_string();
+    assert!(err.starts_with("3: malformed line"), "{err}");
+    let err = parse_list("1.0\n", 1).unwrap_err().to_string();
+    assert!(err.starts_with("1: malformed line"), "{err}");
+}
+
+/// Writes a small synthetic TUM folder and returns its path.
+fn synth_folder(dir: &Path, frames: usize) -> std::path::PathBuf {
+    let out = dir.join("scene");
+    let o = m2smap(&["synth", "--scene", "tabletop", "--frames", &frames.to_string(), "--seed", "3", "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+#[test]
+fn synthetic_scene_round_trips_through_the_command() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 3);
+    let out = dir.path().join("run");
+    let summary = run_ok(&scene, &out, &["--variant", "full"]);
+    check_run(&summary, &frames_jsonl(&out), 3);
+    let d = Dataset::open(&scene, None).unwrap();
+    assert_eq!(d.camera.fx, 535.4, "camera.json is read");
+    assert!(d.frames.iter().all(|f| f.pose.is_some()));
+    // Same seed, same bytes.
+    let again = dir.path().join("again");
+    let o = m2smap(&["synth", "--scene", "tabletop", "--frames", "3", "--seed", "3", "--out", again.to_str().unwrap()]);
+    assert!(o.status.success());
+    for f in ["rgb.txt", "groundtruth.txt", "gt/objects.json"] {
+        assert_eq!(fs::read(scene.join(f)).unwrap(), fs::read(again.join(f)).unwrap(), "{f}");
+    }
+    let first_depth = &d.frames[0].depth;
+    let name = first_depth.strip_prefix(&scene).unwrap();
+    assert_eq!(fs::read(first_depth).unwrap(), fs::read(again.join(name)).unwrap());
+}
+
+/// Runs `m2smap run` on a broken dataset: must fail with exactly one line naming `needle`.
+fn expect_error(dataset: &Path, needle: &str) {
+    let out = tempfile::tempdir().unwrap();
+    let o = m2smap(&["run", dataset.to_str().unwrap(), "--out", out.path().to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "expected failure for {needle}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "one line: {stderr}");
+    assert!(stderr.starts_with("error: ") && stderr.contains(needle), "{stderr:?} should name {needle}");
+    assert!(!stderr.contains("panicked"));
+}
+
+#[test]
+fn broken_datasets_give_one_clear_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 2);
+    let d = Dataset::open(&scene, None).unwrap();
+    let depth0 = d.frames[0].depth.clone();
+    let colour0 = d.frames[0].colour.clone();
+    let fresh = |tag: &str| {
+        let copy = dir.path().join(tag);
+        copy_dir(&scene, &copy);
+        copy
+    };
+
+    // Truncated depth PNG.
+    let c = fresh("truncated");
+    let p = c.join(depth0.strip_prefix(&scene).unwrap());
+    let bytes = fs::read(&p).unwrap();
+    fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+    expect_error(&c, p.file_name().unwrap().to_str().unwrap());
+
+    // Corrupt colour PNG (garbage after the signature).
+    let c = fresh("corrupt");
+    let p = c.join(colour0.strip_prefix(&scene).unwrap());
+    let mut bytes = fs::read(&p).unwrap();
+    for b in bytes.iter_mut().skip(40).take(200) {
+        *b ^= 0x5a;
+    }
+    fs::write(&p, bytes).unwrap();
+    expect_error(&c, p.file_name().unwrap().to_str().unwrap());
+
+    // Missing depth file.
+    let c = fresh("missing");
+    let p = c.join(depth0.strip_prefix(&scene).unwrap());
+    fs::remove_file(&p).unwrap();
+    expect_error(&c, p.file_name().unwrap().to_str().unwrap());
+
+    // Colour image of the wrong size.
+    let c = fresh("size");
+    let p = c.join(colour0.strip_prefix(&scene).unwrap());
+    image::RgbImage::new(320, 240).save(&p).unwrap();
+    expect_error(&c, p.file_name().unwrap().to_str().unwrap());
+
+    // 8-bit depth.
+    let c = fresh("depth8");
+    let p = c.join(depth0.strip_prefix(&scene).unwrap());
+    image::GrayImage::new(640, 480).save(&p).unwrap();
+    expect_error(&c, p.file_name().unwrap().to_str().unwrap());
+
+    // All-zero depth: the core rejects the frame, the shell names the depth file.
+    let c = fresh("zeros");
+    let p = c.join(depth0.strip_prefix(&scene).unwrap());
+    image::ImageBuffer::<image::Luma<u16>, _>::new(640, 480).save(&p).unwrap();
+    expect_error(&c, "no depth sample lies in the configured depth range");
+
+    // Malformed rgb.txt line.
+    let c = fresh("list");
+    let mut text = fs::read_to_string(c.join("rgb.txt")).unwrap();
+    text.push_str("oops rgb/x.png\n");
+    fs::write(c.join("rgb.txt"), text).unwrap();
+    expect_error(&c, "rgb.txt:5: malformed line");
+
+    // Malformed camera.json.
+    let c = fresh("camera");
+    fs::write(c.join("camera.json"), "{\"fx\": 1}").unwrap();
+    expect_error(&c, "camera.json");
+
+    // Not a dataset at all.
+    expect_error(&dir.path().join("nowhere"), "nowhere");
+}
+
+#[test]
+fn bad_config_and_variant_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 1);
+    let cfg = dir.path().join("params.json");
+    fs::write(&cfg, "{\"voxel_resolutoin\": 0.05}").unwrap();
+    let out = dir.path().join("o");
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("params.json"));
+    fs::write(&cfg, "{\"depth_max\": -1.0}").unwrap();
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("depth_max"));
+    fs::write(&cfg, "{\"voxel_resolution\": 0.05}").unwrap();
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
+    assert!(o.status.success(), "a valid partial config is accepted");
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--variant", "best"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("unknown variant"));
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    fs::create_dir_all(to).unwrap();
+    for e in fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            fs::copy(e.path(), target).unwrap();
+        }
+    }
+}

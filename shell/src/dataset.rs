@@ -152,8 +152,9 @@ pub struct ListEntry {
     pub fields: Vec<String>,
 }
 
-/// Reads a TUM list (`rgb.txt`, `depth.txt`, `groundtruth.txt`): `#` comments and blank lines are skipped;
-/// every other line needs a timestamp and at least `min_fields` further fields.
+/// Reads a TUM list (`rgb.txt`, `depth.txt`, `groundtruth.txt`): `#` comments, blank lines and a leading
+/// `timestamp …` column header are skipped; every other line needs a timestamp and at least `min_fields` further
+/// fields.
 pub fn read_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>> {
     let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
     parse_list(&text, min_fields).map_err(|e| anyhow!("{}:{e}", path.display()))
@@ -169,6 +170,9 @@ pub fn parse_list(text: &str, min_fields: usize) -> Result<Vec<ListEntry>> {
         }
         let mut parts = line.split_whitespace();
         let ts = parts.next().unwrap_or("");
+        if out.is_empty() && ts == "timestamp" {
+            continue; // an uncommented column header, as some TUM lists have
+        }
         let timestamp: f64 = match ts.parse() {
             Ok(t) if f64::is_finite(t) => t,
             _ => bail!("{}: malformed line (no timestamp): {line:?}", n + 1),
