@@ -84,10 +84,11 @@ impl<'a> Frame<'a> {
         if !(self.depth_scale.is_finite() && self.depth_scale > 0.0) {
             return Err(FrameError::BadDepthScale);
         }
+        let (lo, hi) = self.raw_range(params);
         let mut first: Option<u16> = None;
         let mut varied = false;
         for &raw in self.depth {
-            if self.in_range(raw, params) {
+            if (lo..=hi).contains(&raw) {
                 match first {
                     None => first = Some(raw),
                     Some(f) if f != raw => {
@@ -111,10 +112,12 @@ impl<'a> Frame<'a> {
         raw as f32 / self.depth_scale
     }
 
-    /// Whether a raw sample is a measurement inside `[depth_min, depth_max]`.
-    #[inline]
-    pub fn in_range(&self, raw: u16, params: &Params) -> bool {
-        let z = self.metres(raw);
-        raw != 0 && z >= params.depth_min && z <= params.depth_max
+    /// The raw values `[lo, hi]` that lie inside `[depth_min, depth_max]` metres (lo ≥ 1: 0 is no measurement).
+    /// The range test on every pixel is then two integer comparisons.
+    pub fn raw_range(&self, params: &Params) -> (u16, u16) {
+        let to_raw = |m: f32| (m * self.depth_scale).clamp(0.0, 65535.0);
+        let lo = libm::ceilf(to_raw(params.depth_min)) as u16;
+        let hi = libm::floorf(to_raw(params.depth_max)) as u16;
+        (lo.max(1), hi)
     }
 }

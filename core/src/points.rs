@@ -45,7 +45,8 @@ pub fn sample_threshold(rate: f32) -> u64 {
     }
 }
 
-/// Whether pixel index `i` is in the sample for `seed` and `threshold`.
+/// Whether pixel index `i` is in the sample for `seed` and `threshold` ([`for_each_point`] inlines the same
+/// test with `mix32(seed)` hoisted).
 #[inline]
 pub fn is_sampled(i: u32, seed: u32, threshold: u64) -> bool {
     (mix32(i ^ mix32(seed)) as u64) < threshold
@@ -54,13 +55,15 @@ pub fn is_sampled(i: u32, seed: u32, threshold: u64) -> bool {
 /// Calls `f` for every sampled, in-range point of `frame`, in pixel order. The frame must have been validated.
 pub fn for_each_point(frame: &Frame<'_>, params: &Params, mut f: impl FnMut(&Point)) {
     let threshold = sample_threshold(params.sample_rate);
+    let seed = mix32(params.sample_seed);
+    let (lo, hi) = frame.raw_range(params);
     let w = frame.width as usize;
     let k = frame.intrinsics;
     let rgb_rows = frame.colour.chunks_exact(w * 3);
     for ((v, row), rgb_row) in frame.depth.chunks_exact(w).enumerate().zip(rgb_rows) {
         let base = (v * w) as u32;
         for ((u, &raw), rgb) in row.iter().enumerate().zip(rgb_row.chunks_exact(3)) {
-            if !frame.in_range(raw, params) || !is_sampled(base + u as u32, params.sample_seed, threshold) {
+            if raw < lo || raw > hi || (mix32((base + u as u32) ^ seed) as u64) >= threshold {
                 continue;
             }
             let z = frame.metres(raw);

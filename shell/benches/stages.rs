@@ -1,1 +1,76 @@
-fn main(){}
+//! `make bench`: median time per pipeline stage on real frames (../shared/data) and synthetic ones.
+//!
+//! A plain harness rather than divan/criterion: the stages share the mapper's borrowed pools, so each stage is
+//! timed in place inside one pass over a frame, and every frame is processed `REPS` times.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use m2smap::dataset::{Camera, Dataset, LoadedFrame};
+use m2smap::run::median;
+use m2smap::synth::Scene;
+use m2smap_core::{HostStorage, Mapper, McuStorage, Params, Profile};
+
+const REPS: usize = 3;
+const STAGES: [&str; 4] = ["points+voxels", "supervoxels", "gaussians", "total"];
+
+fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &[LoadedFrame]) {
+    let mut mapper = Mapper::new(storage, Params::default()).expect("default parameters");
+    let mut times: [Vec<f64>; 4] = Default::default();
+    let mut gaussians = Vec::new();
+    for frame in frames {
+        for _ in 0..REPS {
+            let t0 = Instant::now();
+            let checked = mapper.check(frame.view(camera), None).expect("valid frame");
+            mapper.stage_voxels(&checked);
+            let t1 = Instant::now();
+            mapper.stage_supervoxels();
+            let t2 = Instant::now();
+            mapper.stage_gaussians(&checked);
+            let report = *mapper.finish_frame();
+            let t3 = Instant::now();
+            for (k, (a, b)) in [(t0, t1), (t1, t2), (t2, t3), (t0, t3)].into_iter().enumerate() {
+                times[k].push((b - a).as_secs_f64() * 1e3);
+            }
+            gaussians.push(report.gaussians as f64);
+        }
+    }
+    let cells: Vec<String> = times.iter().map(|t| format!("{:.3}", median(t))).collect();
+    println!(
+        "| {name} | {} | {} | {:.1} | {:.0} |",
+        frames.len(),
+        cells.join(" | "),
+        median(&gaussians),
+        1e3 / median(&times[3])
+    );
+}
+
+fn load(name: &str, limit: usize) -> Option<(Camera, Vec<LoadedFrame>)> {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(name);
+    let d = Dataset::open(&root, None).ok()?;
+    let step = (d.frames.len() / limit).max(1);
+    let frames = (0..d.frames.len()).step_by(step).take(limit).map(|i| d.load(i)).collect::<Result<Vec<_>, _>>().ok()?;
+    Some((d.camera, frames))
+}
+
+fn main() {
+    println!("median ms per stage (single thread, release, {REPS} repetitions of each frame)\n");
+    println!("| data (profile) | frames | {} | Gaussians | Hz |", STAGES.join(" | "));
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    let mut host = bytemuck::zeroed_box::<HostStorage>();
+    let mut mcu = bytemuck::zeroed_box::<McuStorage>();
+    for (name, limit) in [("tum_fr3_cabinet", 58), ("7scenes_redkitchen", 60)] {
+        match load(name, limit) {
+            Some((camera, frames)) => {
+                bench(&format!("{name} (host)"), &mut *host, &camera, &frames);
+                bench(&format!("{name} (mcu)"), &mut *mcu, &camera, &frames);
+            }
+            None => eprintln!("skipped: ../shared/data/{name} not found"),
+        }
+    }
+    for scene in ["tabletop", "shelf"] {
+        let s = Scene::named(scene).expect("built-in scene");
+        let frames: Vec<LoadedFrame> = (0..10).map(|k| s.render(k, Some(1)).frame).collect();
+        bench(&format!("synthetic {scene} (host)"), &mut *host, &s.camera, &frames);
+    }
+}
