@@ -171,3 +171,24 @@ fn same_input_gives_identical_output() {
     let c = map_frame(&scene, &scene.render(3, Some(10)));
     assert_ne!(a.voxel_labels, c.voxel_labels);
 }
+
+#[test]
+fn full_pools_drop_and_count_instead_of_panicking() {
+    use m2smap_core::{PoolId, Storage};
+    // Every pool far too small for a 640x480 frame.
+    type Tiny = Storage<300, 512, 4, 3, 5, { 640 * 480 }>;
+    let scene = Scene::named("tabletop").unwrap();
+    let frame = scene.render(0, Some(2));
+    let mut storage = bytemuck::zeroed_box::<Tiny>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+    for _ in 0..2 {
+        let r = *mapper.process(frame.frame.view(&scene.camera), None).unwrap();
+        assert_eq!(r.voxels, 300);
+        assert!(r.pool(PoolId::Voxels).overflow_events > 0);
+        assert!(r.pool(PoolId::Gaussians).overflow_events + r.pool(PoolId::Supervoxels).overflow_events > 0);
+        assert!(r.overflow_events > 0 && r.dropped_points > 0);
+        assert!(r.gaussians <= 5 && r.supervoxels <= 3);
+        let mapped: u32 = mapper.gaussians().iter().map(|g| g.count).sum();
+        assert_eq!(mapped + r.outlier_points + r.dropped_points, r.points, "every point is mapped or accounted for");
+    }
+}

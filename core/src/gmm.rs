@@ -3,7 +3,8 @@
 //!
 //! **Split rule (decided here, SPEC §2).** A cluster (a set of voxels of one supervoxel) is split in two when
 //! all of these hold:
-//! - it is not compact: its thickness σ2 exceeds `gmm_max_thickness` (1 cm; it bends or spans two surfaces),
+//! - it is not compact: its thickness σ2 exceeds max(`gmm_max_thickness`, `gmm_noise_sigmas`·σ(z)) (1 cm, or
+//!   twice the sensor's depth noise at the cluster's mean depth z: it bends or spans two surfaces),
 //!   its voxel normals spread more than `gmm_max_normal_spread` (a fold or a junction of two surfaces that is
 //!   still thin, such as a narrow strip of wall above a floor), or its largest principal scale σ0 exceeds
 //!   `gmm_max_extent` (0.15 m; it is too large to be local);
@@ -196,7 +197,8 @@ fn process(
     let sigma = eig.sigmas();
     let (mean_normal, spread) = normal_spread(range, voxels);
     let bent = spread > params.gmm_max_normal_spread;
-    let compact = sigma[2] <= params.gmm_max_thickness && sigma[0] <= params.gmm_max_extent && !bent;
+    let max_thickness = params.gmm_max_thickness.max(params.gmm_noise_sigmas * params.depth_noise(m.mean()[2]));
+    let compact = sigma[2] <= max_thickness && sigma[0] <= params.gmm_max_extent && !bent;
     let splittable = task.depth < params.gmm_max_depth && points >= 2 * params.gmm_min_points && range.len() >= 2;
     if !compact && splittable {
         // Candidate seedings, tried in order until one gives two halves of at least `gmm_min_points`: the two
@@ -209,7 +211,7 @@ fn process(
         let candidates = [
             bent.then(|| normal_seeds(range, voxels, mean_normal, r)),
             Some(along(eig.vectors[0], sigma[0])),
-            (sigma[2] > params.gmm_max_thickness).then(|| along(eig.vectors[2], sigma[2])),
+            (sigma[2] > max_thickness).then(|| along(eig.vectors[2], sigma[2])),
         ];
         let split = candidates.into_iter().flatten().find_map(|seeds| two_means_partition(range, voxels, seeds, params));
         if let Some(mid) = split {

@@ -81,6 +81,14 @@ pub struct Params {
     /// A component thicker than this (σ2, metres) is split. 1 cm: well above Kinect noise after 3 cm voxel
     /// averaging, small enough that a box edge or a curved patch is split into flat pieces.
     pub gmm_max_thickness: f32,
+    /// Axial depth noise of the sensor, σ(z) = a + b·(z − 0.4 m)², metres (Kinect model of Nguyen et al. 2012:
+    /// a = 0.0012 m).
+    pub sensor_noise_a: f32,
+    /// Quadratic term b of the axial depth noise, 1/m (Kinect: 0.0019).
+    pub sensor_noise_b: f32,
+    /// The thickness that triggers a split never goes below this many σ(z) at the cluster's mean depth, so far,
+    /// noisy surfaces are not shredded into noise-sized pieces.
+    pub gmm_noise_sigmas: f32,
     /// A component whose largest principal scale σ0 exceeds this (metres) is split, so each Gaussian stays
     /// local; fusion merges coplanar pieces again.
     pub gmm_max_extent: f32,
@@ -165,6 +173,9 @@ impl Default for Params {
             seed_min_voxels: 8,
             gmm_max_thickness: 0.01,
             gmm_max_extent: 0.15,
+            sensor_noise_a: 0.0012,
+            sensor_noise_b: 0.0019,
+            gmm_noise_sigmas: 2.0,
             gmm_max_normal_spread: 0.05,
             gmm_normal_weight: 0.1,
             gmm_min_points: 6,
@@ -197,6 +208,12 @@ impl Default for Params {
 pub const VOXEL_GRID_HALF_EXTENT: i32 = 1023;
 
 impl Params {
+    /// Axial depth noise σ(z) of the sensor at depth `z`, metres.
+    pub fn depth_noise(&self, z: f32) -> f32 {
+        let d = z - 0.4;
+        self.sensor_noise_a + self.sensor_noise_b * d * d
+    }
+
     /// Checks every range; [`crate::Mapper::new`] refuses parameters that fail.
     pub fn validate(&self) -> Result<(), ParamError> {
         fn check(ok: bool, name: &'static str) -> Result<(), ParamError> {
@@ -221,6 +238,9 @@ impl Params {
         check(pos(self.gmm_max_thickness), "gmm_max_thickness")?;
         check(pos(self.gmm_max_extent), "gmm_max_extent")?;
         check(unit(self.gmm_max_normal_spread), "gmm_max_normal_spread")?;
+        check(self.sensor_noise_a.is_finite() && self.sensor_noise_a >= 0.0, "sensor_noise_a")?;
+        check(self.sensor_noise_b.is_finite() && self.sensor_noise_b >= 0.0, "sensor_noise_b")?;
+        check(self.gmm_noise_sigmas.is_finite() && self.gmm_noise_sigmas >= 0.0, "gmm_noise_sigmas")?;
         check(self.gmm_normal_weight.is_finite() && self.gmm_normal_weight >= 0.0, "gmm_normal_weight")?;
         check(self.gmm_min_points >= 3, "gmm_min_points")?;
         check(self.gmm_max_depth <= 30, "gmm_max_depth")?;

@@ -105,7 +105,7 @@ impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: us
 }
 
 /// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included.
-pub type McuStorage = Storage<8192, 16384, 128, 256, 512, { 640 * 480 }>;
+pub type McuStorage = Storage<8192, 16384, 128, 128, 640, { 640 * 480 }>;
 
 /// The `host` profile: larger pools for workstation replays (frames up to 1280×1024).
 pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, { 1280 * 1024 }>;
