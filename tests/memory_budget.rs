@@ -17,5 +17,6 @@ fn budget_table_matches_the_code() {
 fn mcu_profile_fits_its_budget() {
     let pools: usize = McuStorage::POOLS.iter().map(|&(_, cap, size)| cap * size).sum();
     assert_eq!(pools, McuStorage::BYTES, "every byte of the storage belongs to a listed pool");
-    assert!(MCU_TOTAL_BYTES <= MCU_BUDGET_BYTES, "{MCU_TOTAL_BYTES} > {MCU_BUDGET_BYTES}");
+    // MCU_TOTAL_BYTES <= MCU_BUDGET_BYTES is a `const` assertion in core/src/profile.rs: the build fails first.
+    println!("mcu total {MCU_TOTAL_BYTES} of {MCU_BUDGET_BYTES} bytes");
 }
