@@ -53,11 +53,41 @@ pub struct Gaussian {
     pub bbox_min: Vec3,
     /// Maximum corner of the support's axis-aligned box, metres.
     pub bbox_max: Vec3,
+    /// Projected support box B_i^2D `[u0, v0, u1, v1]`, inclusive pixels.
+    pub pixel_bbox: [u16; 4],
+    /// Detection confidence s of the matched mask (0 when unannotated).
+    pub score: f32,
+    /// Mask support ratio ρ of the matched mask (0 when unannotated).
+    pub support_ratio: f32,
     /// Supervoxel it was refined from.
     pub supervoxel: u16,
+    /// Fused cluster (the fusion map Γ, read backwards), after stage 5.
+    pub cluster: u16,
+    /// Instance id a of the matched mask; 0 means a = −1 (unannotated).
+    pub instance: u16,
+    /// Category label ℓ of the matched mask (index into the caller's label table).
+    pub class: u16,
+    /// Role after flat-plane separation: [`ROLE_NONE`], [`ROLE_PLANE`], [`ROLE_OBJECT`] or [`ROLE_RESIDUAL`].
+    pub role: u8,
+    /// Plane index when `role == ROLE_PLANE`.
+    pub plane: u8,
 }
 
+/// Role before separation has run.
+pub const ROLE_NONE: u8 = 0;
+/// Support of a bounded plane (removed from the Gaussian map).
+pub const ROLE_PLANE: u8 = 1;
+/// Part of a semantic object support set.
+pub const ROLE_OBJECT: u8 = 2;
+/// Residual structure, kept as a GMM primitive.
+pub const ROLE_RESIDUAL: u8 = 3;
+
 impl Gaussian {
+    /// A zeroed Gaussian used to carry semantic attributes (a, ℓ, s, ρ) between stages.
+    pub fn default_label() -> Gaussian {
+        Gaussian::zeroed()
+    }
+
     /// Principal scales σk = √λk, metres.
     pub fn sigmas(&self) -> Vec3 {
         [
@@ -152,10 +182,13 @@ pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> Gm
         c[3] += d[1] * d[1];
         c[4] += d[1] * d[2];
         c[5] += d[2] * d[2];
-        for ((lo, hi), x) in g.bbox_min.iter_mut().zip(g.bbox_max.iter_mut()).zip(p.xyz) {
-            *lo = lo.min(x);
-            *hi = hi.max(x);
-        }
+        g.bbox_min = linalg::min_elem(g.bbox_min, p.xyz);
+        g.bbox_max = linalg::max_elem(g.bbox_max, p.xyz);
+        let b = &mut g.pixel_bbox;
+        b[0] = b[0].min(p.u);
+        b[1] = b[1].min(p.v);
+        b[2] = b[2].max(p.u);
+        b[3] = b[3].max(p.v);
     });
     for g in gaussians.as_mut_slice() {
         let k = if g.count > 1 { 1.0 / (g.count - 1) as f32 } else { 0.0 };
@@ -243,6 +276,7 @@ fn process(
     g.colour = [(colour[0] / n) as u8, (colour[1] / n) as u8, (colour[2] / n) as u8];
     g.bbox_min = [f32::MAX; 3];
     g.bbox_max = [f32::MIN; 3];
+    g.pixel_bbox = [u16::MAX, u16::MAX, 0, 0];
     g.supervoxel = task.supervoxel;
     let label = match gaussians.push(g) {
         Some(id) => id as u16,

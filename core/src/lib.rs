@@ -33,12 +33,16 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod error;
+pub mod annotate;
 pub mod frame;
+pub mod fuse;
 pub mod gmm;
 pub mod linalg;
 pub mod mapper;
 pub mod masks;
+pub mod objects;
 pub mod params;
+pub mod plane;
 pub mod points;
 pub mod pool;
 pub mod profile;

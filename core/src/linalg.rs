@@ -25,6 +25,18 @@ pub fn scale(a: Vec3, s: f32) -> Vec3 {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 
+/// Element-wise minimum.
+#[inline]
+pub fn min_elem(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0].min(b[0]), a[1].min(b[1]), a[2].min(b[2])]
+}
+
+/// Element-wise maximum.
+#[inline]
+pub fn max_elem(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0].max(b[0]), a[1].max(b[1]), a[2].max(b[2])]
+}
+
 /// a · b.
 #[inline]
 pub fn dot(a: Vec3, b: Vec3) -> f32 {
@@ -87,6 +99,22 @@ impl Moments {
         s[3] += w * d[1] * d[1];
         s[4] += w * d[1] * d[2];
         s[5] += w * d[2] * d[2];
+    }
+
+    /// Adds a whole Gaussian: `n` points with mean `mean` and covariance `cov` (denominator n − 1). Merging
+    /// Gaussians this way gives exactly the moments of the union of their points.
+    pub fn add_gaussian(&mut self, mean: Vec3, cov: Sym3, n: f32) {
+        let d = sub(mean, self.reference);
+        let k = (n - 1.0).max(0.0);
+        self.weight += n;
+        self.sum = add(self.sum, scale(d, n));
+        let s = &mut self.sum_sq;
+        s[0] += k * cov[0] + n * d[0] * d[0];
+        s[1] += k * cov[1] + n * d[0] * d[1];
+        s[2] += k * cov[2] + n * d[0] * d[2];
+        s[3] += k * cov[3] + n * d[1] * d[1];
+        s[4] += k * cov[4] + n * d[1] * d[2];
+        s[5] += k * cov[5] + n * d[2] * d[2];
     }
 
     /// Mean, metres (the reference when empty).
@@ -250,6 +278,34 @@ mod tests {
                 assert!((norm(eig.vectors[k]) - 1.0).abs() < 1e-4);
             }
             assert!(dot(cross(eig.vectors[0], eig.vectors[1]), eig.vectors[2]) > 0.999);
+        }
+    }
+
+    #[test]
+    fn merging_gaussians_equals_moments_of_the_union() {
+        let a = [[0.0, 0.0, 1.0], [0.1, 0.0, 1.0], [0.0, 0.2, 1.1]];
+        let b = [[1.0, 1.0, 2.0], [1.2, 0.9, 2.0], [1.1, 1.1, 2.2], [0.9, 1.0, 2.1]];
+        let moments = |pts: &[[f32; 3]]| {
+            let mut m = Moments::about(pts[0]);
+            for &p in pts {
+                m.add(p, 1.0);
+            }
+            m
+        };
+        let (ma, mb) = (moments(&a), moments(&b));
+        let mut all = [[0.0f32; 3]; 7];
+        for (slot, p) in all.iter_mut().zip(a.iter().chain(&b)) {
+            *slot = *p;
+        }
+        let direct = moments(&all);
+        let mut merged = Moments::about([0.5, 0.5, 1.5]);
+        merged.add_gaussian(ma.mean(), ma.covariance(), 3.0);
+        merged.add_gaussian(mb.mean(), mb.covariance(), 4.0);
+        for k in 0..3 {
+            assert!((merged.mean()[k] - direct.mean()[k]).abs() < 1e-6);
+        }
+        for k in 0..6 {
+            assert!((merged.covariance()[k] - direct.covariance()[k]).abs() < 1e-6);
         }
     }
 

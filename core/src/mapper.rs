@@ -1,6 +1,11 @@
 //! The mapper: runs the stages over borrowed pools and reports what each frame used.
 
+use crate::annotate::{self, MaskHit};
 use crate::error::FrameError;
+use crate::fuse;
+use crate::gmm::{ROLE_OBJECT, ROLE_PLANE, ROLE_RESIDUAL};
+use crate::objects::{self, Object};
+use crate::plane::{self, Plane};
 use crate::error::ParamError;
 use crate::frame::Frame;
 use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
@@ -51,6 +56,24 @@ pub struct FrameReport {
     pub splits: u32,
     /// Gaussians |C_g|.
     pub gaussians: u32,
+    /// Gaussians that received an instance annotation.
+    pub annotated: u32,
+    /// Fused clusters.
+    pub clusters: u32,
+    /// R_c = |C_g| / |fused clusters|.
+    pub r_c: f32,
+    /// Bounded planes.
+    pub planes: u32,
+    /// Semantic objects.
+    pub objects: u32,
+    /// Gaussians removed as plane support.
+    pub plane_gaussians: u32,
+    /// Gaussians of semantic objects.
+    pub object_gaussians: u32,
+    /// Residual Gaussians (GMM primitives).
+    pub residual_gaussians: u32,
+    /// Instances ignored beyond the annotation limit.
+    pub ignored_instances: u32,
     /// Points in outlier clusters (too small to map).
     pub outlier_points: u32,
     /// Points lost to a full pool.
@@ -80,6 +103,10 @@ pub struct Mapper<'s> {
     supervoxels: Bounded<'s, Supervoxel>,
     stack: Bounded<'s, SplitTask>,
     gaussians: Bounded<'s, Gaussian>,
+    mask_hits: &'s mut [MaskHit],
+    hit_overflows: u32,
+    planes: Bounded<'s, Plane>,
+    objects: Bounded<'s, Object>,
     report: FrameReport,
     frames: u32,
 }
@@ -99,6 +126,10 @@ impl<'s> Mapper<'s> {
             supervoxels: Bounded::new(parts.supervoxels),
             stack: Bounded::new(parts.stack),
             gaussians: Bounded::new(parts.gaussians),
+            mask_hits: parts.mask_hits,
+            hit_overflows: 0,
+            planes: Bounded::new(parts.planes),
+            objects: Bounded::new(parts.objects),
             report: FrameReport::default(),
             frames: 0,
         })
@@ -124,6 +155,8 @@ impl<'s> Mapper<'s> {
         self.stage_voxels(&checked);
         self.stage_supervoxels();
         self.stage_gaussians(&checked);
+        self.stage_annotate(&checked);
+        self.stage_separate(&checked);
         Ok(self.finish_frame())
     }
 
@@ -181,6 +214,113 @@ impl<'s> Mapper<'s> {
         self.report.gaussians = self.gaussians.len() as u32;
     }
 
+    /// Stage 4: mask annotation of the Gaussians (fourth step of [`Mapper::process`]).
+    pub fn stage_annotate(&mut self, checked: &CheckedFrame<'_>) {
+        self.hit_overflows = 0;
+        for g in self.gaussians.as_mut_slice() {
+            g.instance = 0;
+            g.class = 0;
+            g.score = 0.0;
+            g.support_ratio = 0.0;
+        }
+        let Some(masks) = checked.masks.filter(|_| self.params.variant.annotates()) else {
+            self.mask_hits.fill(bytemuck::Zeroable::zeroed());
+            return;
+        };
+        let stats = annotate::count_hits(
+            &checked.frame,
+            &masks,
+            self.voxels.as_slice(),
+            self.slots,
+            self.gaussians.as_slice(),
+            self.mask_hits,
+            &self.params,
+        );
+        self.hit_overflows = stats.hit_overflows;
+        self.report.ignored_instances = stats.ignored_instances;
+        if self.params.variant.semantic_fusion() {
+            self.report.annotated = annotate::annotate(&masks, self.gaussians.as_mut_slice(), self.mask_hits, &self.params);
+        }
+    }
+
+    /// Stages 5–8: fusion, flat-plane separation, bounded planes, object sets (last step of [`Mapper::process`]).
+    pub fn stage_separate(&mut self, checked: &CheckedFrame<'_>) {
+        let params = self.params;
+        let fused = fuse::fuse(self.gaussians.as_mut_slice(), self.scratch, &params);
+        self.planes.clear();
+        let post_merge = params.variant.annotates() && !params.variant.semantic_fusion();
+        let masks = checked.masks;
+        let hits: &[MaskHit] = self.mask_hits;
+        let planes = &mut self.planes;
+        let mut annotated = 0u32;
+        fuse::for_each_cluster(self.gaussians.as_mut_slice(), self.scratch, |gaussians, id, members| {
+            if let (true, Some(masks)) = (post_merge, masks.as_ref()) {
+                // PMSAO: the merged cluster is annotated as a whole, and its Gaussians take its label.
+                let support: u32 = members.iter().filter_map(|&i| gaussians.get(i as usize)).map(|g| g.count).sum();
+                let best = annotate::best_match(masks, &params, |k| {
+                    members.iter().map(|&i| annotate::hits_of(hits, i as usize, k)).sum()
+                });
+                let mut label = Gaussian::default_label();
+                if annotate::accept(masks, &params, support, best, &mut label) {
+                    annotated += members.len() as u32;
+                }
+                for &i in members {
+                    if let Some(g) = gaussians.get_mut(i as usize) {
+                        g.instance = label.instance;
+                        g.class = label.class;
+                        g.score = label.score;
+                        g.support_ratio = label.support_ratio;
+                    }
+                }
+            }
+            let instance = members.first().and_then(|&i| gaussians.get(i as usize)).map_or(0, |g| g.instance);
+            let (m, e) = fuse::cluster_shape(gaussians, members);
+            let points = m.weight as u32;
+            let plane = if params.variant.planes() && plane::is_flat_plane(points, &e, instance, &params) {
+                let mut colour = [0u64; 3];
+                for g in members.iter().filter_map(|&i| gaussians.get(i as usize)) {
+                    for (c, v) in colour.iter_mut().zip(g.colour) {
+                        *c += v as u64 * g.count as u64;
+                    }
+                }
+                let n = points.max(1) as u64;
+                let colour = [(colour[0] / n) as u8, (colour[1] / n) as u8, (colour[2] / n) as u8];
+                planes.push(Plane::new(m.mean(), &e, points, colour, id))
+            } else {
+                None
+            };
+            for &i in members {
+                if let Some(g) = gaussians.get_mut(i as usize) {
+                    (g.role, g.plane) = match plane {
+                        Some(k) if g.instance == 0 => (ROLE_PLANE, k as u8),
+                        _ if g.instance != 0 => (ROLE_OBJECT, 0),
+                        _ => (ROLE_RESIDUAL, 0),
+                    };
+                }
+            }
+        });
+        if post_merge {
+            self.report.annotated = annotated;
+        }
+        plane::fill_cells(
+            &checked.frame,
+            self.voxels.as_slice(),
+            self.slots,
+            self.gaussians.as_slice(),
+            self.planes.as_mut_slice(),
+            &params,
+        );
+        objects::group_objects(self.gaussians.as_slice(), &mut self.objects);
+        let count = |role| self.gaussians.as_slice().iter().filter(|g| g.role == role).count() as u32;
+        self.report.plane_gaussians = count(ROLE_PLANE);
+        self.report.object_gaussians = count(ROLE_OBJECT);
+        self.report.residual_gaussians = count(ROLE_RESIDUAL);
+        self.report.clusters = fused.clusters;
+        self.report.r_c = if fused.clusters > 0 { self.gaussians.len() as f32 / fused.clusters as f32 } else { 0.0 };
+        self.report.planes = self.planes.len() as u32;
+        self.report.objects = self.objects.len() as u32;
+    }
+
     /// Closes the frame's accounting and returns its report.
     pub fn finish_frame(&mut self) -> &FrameReport {
         self.frames += 1;
@@ -194,6 +334,13 @@ impl<'s> Mapper<'s> {
             self.supervoxels.usage(),
             self.stack.usage(),
             self.gaussians.usage(),
+            PoolUsage {
+                peak: self.mask_hits.iter().filter(|h| h.key != 0).count(),
+                capacity: self.mask_hits.len(),
+                overflow_events: self.hit_overflows,
+            },
+            self.planes.usage(),
+            self.objects.usage(),
         ];
         self.report.overflow_events = self.report.pools.iter().map(|p| p.overflow_events).sum();
         &self.report
@@ -217,6 +364,16 @@ impl<'s> Mapper<'s> {
     /// Gaussians C_g of the last frame.
     pub fn gaussians(&self) -> &[Gaussian] {
         self.gaussians.as_slice()
+    }
+
+    /// Bounded planes of the last frame.
+    pub fn planes(&self) -> &[Plane] {
+        self.planes.as_slice()
+    }
+
+    /// Semantic objects of the last frame.
+    pub fn objects(&self) -> &[Object] {
+        self.objects.as_slice()
     }
 
     /// Calls `f(point, voxel)` for every sampled point of `checked` with the voxel it fell into (labels tell

@@ -39,6 +39,22 @@ impl Variant {
         }
     }
 
+    /// Whether Gaussians are annotated with instance masks (every variant with semantics).
+    pub fn annotates(self) -> bool {
+        matches!(self, Variant::Full | Variant::Pmsao | Variant::Wsqa)
+    }
+
+    /// Whether fusion requires equal instance ids (ψ_s); otherwise labels are assigned after merging (PMSAO) or
+    /// not at all.
+    pub fn semantic_fusion(self) -> bool {
+        matches!(self, Variant::Full | Variant::Wsqa)
+    }
+
+    /// Whether flat planes are separated.
+    pub fn planes(self) -> bool {
+        !matches!(self, Variant::Mmog)
+    }
+
     /// Parses a name from [`Variant::name`].
     pub fn from_name(name: &str) -> Option<Variant> {
         Variant::ALL.iter().copied().find(|v| v.name() == name)

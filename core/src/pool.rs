@@ -7,7 +7,8 @@ pub enum PoolId {
     Voxels,
     /// Open-addressing slots of the voxel hash (voxel index + 1, 0 = empty).
     VoxelSlots,
-    /// Per-voxel scratch: growth stamps during supervoxel growth, then the voxel order of the split stage.
+    /// Per-voxel scratch: growth stamps during supervoxel growth, the voxel order of the split stage, then the
+    /// Gaussian order of fusion.
     VoxelScratch,
     /// Seed cells (R_seed cubes) during seeding.
     SeedCells,
@@ -17,11 +18,17 @@ pub enum PoolId {
     SplitStack,
     /// Refined Gaussians, the set C_g.
     Gaussians,
+    /// (Gaussian, instance) mask-hit counters of the annotation.
+    MaskHits,
+    /// Bounded planes with their occupancy grids.
+    Planes,
+    /// Semantic object support sets.
+    Objects,
 }
 
 impl PoolId {
     /// Number of pools.
-    pub const COUNT: usize = 7;
+    pub const COUNT: usize = 10;
     /// All pools in report order.
     pub const ALL: [PoolId; PoolId::COUNT] = [
         PoolId::Voxels,
@@ -31,6 +38,9 @@ impl PoolId {
         PoolId::Supervoxels,
         PoolId::SplitStack,
         PoolId::Gaussians,
+        PoolId::MaskHits,
+        PoolId::Planes,
+        PoolId::Objects,
     ];
 
     /// Snake-case name used in `summary.json` and `memory_budget.md`.
@@ -43,6 +53,9 @@ impl PoolId {
             PoolId::Supervoxels => "supervoxels",
             PoolId::SplitStack => "split_stack",
             PoolId::Gaussians => "gaussians",
+            PoolId::MaskHits => "mask_hits",
+            PoolId::Planes => "planes",
+            PoolId::Objects => "objects",
         }
     }
 }

@@ -6,7 +6,10 @@
 
 use bytemuck::Zeroable;
 
+use crate::annotate::MaskHit;
 use crate::gmm::{Gaussian, SplitTask};
+use crate::objects::Object;
+use crate::plane::Plane;
 use crate::mapper::Mapper;
 use crate::pool::PoolId;
 use crate::supervoxel::{SeedCell, Supervoxel, Voxel};
@@ -19,11 +22,21 @@ pub const SPLIT_STACK: usize = 64;
 /// - `V`: voxels (≤ 65 533, voxel indices are `u16`), also the length of the per-voxel scratch;
 /// - `H`: voxel hash slots (about 2 × `V` keeps linear probing short);
 /// - `C`: seed cells; `S`: supervoxels; `G`: Gaussians;
+/// - `M`: mask-hit counters (a hash table: about 2 × the annotated Gaussians); `L`: planes; `O`: objects;
 /// - `P`: largest frame, pixels.
 #[derive(Zeroable)]
 #[repr(C)]
-pub struct Storage<const V: usize, const H: usize, const C: usize, const S: usize, const G: usize, const P: usize>
-{
+pub struct Storage<
+    const V: usize,
+    const H: usize,
+    const C: usize,
+    const S: usize,
+    const G: usize,
+    const M: usize,
+    const L: usize,
+    const O: usize,
+    const P: usize,
+> {
     pub(crate) voxels: [Voxel; V],
     pub(crate) slots: [u16; H],
     pub(crate) scratch: [u16; V],
@@ -31,6 +44,9 @@ pub struct Storage<const V: usize, const H: usize, const C: usize, const S: usiz
     pub(crate) supervoxels: [Supervoxel; S],
     pub(crate) stack: [SplitTask; SPLIT_STACK],
     pub(crate) gaussians: [Gaussian; G],
+    pub(crate) mask_hits: [MaskHit; M],
+    pub(crate) planes: [Plane; L],
+    pub(crate) objects: [Object; O],
 }
 
 /// Mutable views of every pool of one storage.
@@ -49,6 +65,12 @@ pub struct Parts<'a> {
     pub stack: &'a mut [SplitTask],
     /// Gaussians.
     pub gaussians: &'a mut [Gaussian],
+    /// Mask-hit table.
+    pub mask_hits: &'a mut [MaskHit],
+    /// Planes.
+    pub planes: &'a mut [Plane],
+    /// Objects.
+    pub objects: &'a mut [Object],
 }
 
 /// A capacity profile: storage the mapper can run in.
@@ -59,8 +81,17 @@ pub trait Profile {
     fn parts(&mut self) -> Parts<'_>;
 }
 
-impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: usize, const P: usize> Profile
-    for Storage<V, H, C, S, G, P>
+impl<
+        const V: usize,
+        const H: usize,
+        const C: usize,
+        const S: usize,
+        const G: usize,
+        const M: usize,
+        const L: usize,
+        const O: usize,
+        const P: usize,
+    > Profile for Storage<V, H, C, S, G, M, L, O, P>
 {
     const MAX_PIXELS: usize = P;
     fn parts(&mut self) -> Parts<'_> {
@@ -74,12 +105,24 @@ impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: us
             supervoxels: &mut self.supervoxels,
             stack: &mut self.stack,
             gaussians: &mut self.gaussians,
+            mask_hits: &mut self.mask_hits,
+            planes: &mut self.planes,
+            objects: &mut self.objects,
         }
     }
 }
 
-impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: usize, const P: usize>
-    Storage<V, H, C, S, G, P>
+impl<
+        const V: usize,
+        const H: usize,
+        const C: usize,
+        const S: usize,
+        const G: usize,
+        const M: usize,
+        const L: usize,
+        const O: usize,
+        const P: usize,
+    > Storage<V, H, C, S, G, M, L, O, P>
 {
     /// Every pool as (pool, capacity, bytes per element), in report order — the rows of `memory_budget.md`.
     pub const POOLS: [(PoolId, usize, usize); PoolId::COUNT] = [
@@ -90,6 +133,9 @@ impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: us
         (PoolId::Supervoxels, S, core::mem::size_of::<Supervoxel>()),
         (PoolId::SplitStack, SPLIT_STACK, core::mem::size_of::<SplitTask>()),
         (PoolId::Gaussians, G, core::mem::size_of::<Gaussian>()),
+        (PoolId::MaskHits, M, core::mem::size_of::<MaskHit>()),
+        (PoolId::Planes, L, core::mem::size_of::<Plane>()),
+        (PoolId::Objects, O, core::mem::size_of::<Object>()),
     ];
 
     /// Compile-time check that voxel, supervoxel and Gaussian indices fit `u16` beside the reserved labels.
@@ -97,7 +143,9 @@ impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: us
         V < crate::supervoxel::DROPPED as usize
             && S < crate::supervoxel::DROPPED as usize
             && G < crate::supervoxel::DROPPED as usize
+            && L < 255
             && H >= V
+            && V >= G
     );
 
     /// Bytes of the storage itself.
@@ -105,10 +153,10 @@ impl<const V: usize, const H: usize, const C: usize, const S: usize, const G: us
 }
 
 /// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included.
-pub type McuStorage = Storage<8192, 16384, 128, 128, 640, { 640 * 480 }>;
+pub type McuStorage = Storage<8192, 16384, 128, 128, 576, 1024, 8, 32, { 640 * 480 }>;
 
 /// The `host` profile: larger pools for workstation replays (frames up to 1280×1024).
-pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, { 1280 * 1024 }>;
+pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 255, { 1280 * 1024 }>;
 
 /// RAM budget of the `mcu` profile, bytes.
 pub const MCU_BUDGET_BYTES: usize = 512 * 1024;

@@ -6,5 +6,7 @@
 
 pub mod budget;
 pub mod dataset;
+pub mod eval;
+pub mod masks;
 pub mod run;
 pub mod synth;

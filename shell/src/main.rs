@@ -41,6 +41,9 @@ enum Command {
         /// Capacity profile of the core.
         #[arg(long, value_enum, default_value = "host")]
         profile: ProfileChoice,
+        /// Instance-mask folder (default: DATASET/masks when it exists).
+        #[arg(long)]
+        masks: Option<PathBuf>,
     },
     /// Write a synthetic scene with ground truth as a TUM folder.
     Synth {
@@ -76,7 +79,7 @@ fn main() -> ExitCode {
 
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { dataset, out, variant, frames, config, camera, profile } => {
+        Command::Run { dataset, out, variant, frames, config, camera, profile, masks } => {
             let variant = match variant {
                 Some(name) => Some(Variant::from_name(&name).ok_or_else(|| anyhow!("unknown variant {name:?}"))?),
                 None => None,
@@ -89,18 +92,26 @@ fn execute(cli: Cli) -> Result<()> {
                 config,
                 camera,
                 profile,
+                masks,
                 progress: std::io::stderr().is_terminal(),
             };
             let s = run(&opts)?;
             println!(
-                "{} frames ({} profile): {:.0} points, {:.0} voxels, {:.1} supervoxels, {:.1} Gaussians per frame; \
+                "{} frames ({}, {} profile): {:.0} points, {:.0} voxels, {:.1} supervoxels, {:.1} Gaussians, \
+                 {:.1} clusters, {:.2} planes, {:.2} objects per frame; R_c {:.2}, N_adh {:.3}; \
                  median {:.2} ms ({:.0} Hz); {} overflow events -> {}",
                 s.frames,
+                s.variant,
                 s.profile,
                 s.points,
                 s.voxels,
                 s.supervoxels,
                 s.gaussians,
+                s.clusters,
+                s.primitives.plane.unwrap_or(0.0),
+                s.objects,
+                s.r_c.unwrap_or(0.0),
+                s.n_adh.unwrap_or(0.0),
                 s.ms_per_frame_median,
                 s.hz,
                 s.overflow_events,

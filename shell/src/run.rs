@@ -11,7 +11,9 @@ use bytemuck::Zeroable;
 use m2smap_core::{FrameReport, HostStorage, Mapper, McuStorage, Params, PoolId, Profile, Variant};
 use serde::Serialize;
 
-use crate::dataset::Dataset;
+use crate::dataset::{read_depth, Dataset};
+use crate::eval;
+use crate::masks::{mask_dir, read_frame_masks, LabelTable};
 
 /// Which capacity profile to run the core with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -39,6 +41,8 @@ pub struct RunOptions {
     pub camera: Option<String>,
     /// Capacity profile.
     pub profile: ProfileChoice,
+    /// Mask folder (`--masks`); default `DATASET/masks` when present.
+    pub masks: Option<PathBuf>,
     /// Show a progress bar (on a terminal).
     pub progress: bool,
 }
@@ -84,6 +88,20 @@ pub struct FrameRecord {
     pub supervoxels: u32,
     /// Gaussians C_g.
     pub gaussians: u32,
+    /// Instances in the frame's masks.
+    pub instances: usize,
+    /// Gaussians annotated with an instance.
+    pub annotated: u32,
+    /// Fused clusters.
+    pub clusters: u32,
+    /// Semantic objects.
+    pub objects: u32,
+    /// Gaussians removed as plane support.
+    pub plane_gaussians: u32,
+    /// Gaussians in object support sets.
+    pub object_gaussians: u32,
+    /// Residual Gaussians.
+    pub residual_gaussians: u32,
     /// Points in outlier clusters.
     pub outlier_points: u32,
     /// Points lost to full pools.
@@ -131,6 +149,12 @@ pub struct Summary {
     pub supervoxels: f64,
     /// Mean Gaussians per frame.
     pub gaussians: f64,
+    /// Mean fused clusters per frame.
+    pub clusters: f64,
+    /// Mean objects per frame.
+    pub objects: f64,
+    /// Fraction of frames with at least one plane.
+    pub frames_with_plane: f64,
     /// Mean primitive counts.
     pub primitives: Primitives,
     /// Mean payload, bytes.
@@ -213,6 +237,11 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
 
 fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOptions, storage: &mut P) -> Result<Vec<FrameRecord>> {
     let mut mapper = Mapper::new(storage, params).map_err(|e| anyhow!("parameters: {e}"))?;
+    let masks_dir = mask_dir(&dataset.root, opts.masks.as_deref());
+    if let Some(d) = masks_dir.as_ref().filter(|d| !d.is_dir()) {
+        return Err(anyhow!("{}: mask folder does not exist", d.display()));
+    }
+    let mut labels = LabelTable::default();
     let n = opts.frames.map_or(dataset.frames.len(), |k| k.min(dataset.frames.len()));
     let jsonl_path = opts.out.join("frames.jsonl");
     let mut jsonl = std::io::BufWriter::new(
@@ -226,11 +255,26 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
     let mut records = Vec::with_capacity(n);
     for (index, fref) in dataset.frames.iter().take(n).enumerate() {
         let loaded = dataset.load(index)?;
+        let masks = match &masks_dir {
+            Some(d) => read_frame_masks(d, &fref.stem, loaded.width, loaded.height, &mut labels)?,
+            None => None,
+        };
+        let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
+        let gt = if gt_path.is_file() { Some(read_depth(&gt_path)?.2) } else { None };
+        let frame = loaded.view(&dataset.camera);
         let start = Instant::now();
         let report = *mapper
-            .process(loaded.view(&dataset.camera), None)
+            .process(frame, masks.as_ref().map(|m| m.view()))
             .map_err(|e| anyhow!("{}: {e}", fref.depth.display()))?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
+        let checked = mapper.check(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{e}"))?;
+        let w = loaded.width as usize;
+        let semantic = eval::semantic_metrics(&mapper, &checked, |u, v| match (&gt, &masks) {
+            (Some(gt), _) => gt.get(v as usize * w + u as usize).copied().unwrap_or(0),
+            (None, Some(m)) => m.id_at(u, v),
+            (None, None) => 0,
+        });
+        let gmm = (report.object_gaussians + report.residual_gaussians) as f64;
         let record = FrameRecord {
             index,
             stem: fref.stem.clone(),
@@ -239,28 +283,47 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             voxels: report.voxels,
             supervoxels: report.supervoxels,
             gaussians: report.gaussians,
+            instances: masks.as_ref().map_or(0, |m| m.instances.len()),
+            annotated: report.annotated,
+            clusters: report.clusters,
+            objects: report.objects,
+            plane_gaussians: report.plane_gaussians,
+            object_gaussians: report.object_gaussians,
+            residual_gaussians: report.residual_gaussians,
             outlier_points: report.outlier_points,
             dropped_points: report.dropped_points,
-            primitives: Primitives::default(),
+            // Until superquadrics land, every non-plane Gaussian is a GMM primitive.
+            primitives: Primitives {
+                plane: Some(report.planes as f64),
+                sq: None,
+                gmm: Some(gmm),
+                total: Some(report.planes as f64 + gmm),
+            },
             payload_bytes: None,
             g2r_rmse_m: None,
             r2g_rmse_m: None,
-            r_c: None,
-            a_s: None,
-            n_adh: None,
+            r_c: Some(report.r_c as f64),
+            a_s: semantic.a_s,
+            n_adh: Some(semantic.n_adh as f64),
             j_sq_deg: None,
             pools: pool_records(&report),
             overflow_events: report.overflow_events as u64,
         };
         serde_json::to_writer(&mut jsonl, &record)?;
         jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
-        bar.set_message(format!("{} Gaussians, {:.1} ms", report.gaussians, ms));
+        bar.set_message(format!("{} Gaussians, {} planes, {:.1} ms", report.gaussians, report.planes, ms));
         bar.inc(1);
         records.push(record);
     }
     bar.finish_and_clear();
     jsonl.flush().with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
     Ok(records)
+}
+
+/// Mean of the defined values, `None` when there are none.
+fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
+    let v: Vec<f64> = values.flatten().collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
 fn summarise(records: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> Summary {
@@ -288,13 +351,21 @@ fn summarise(records: &[FrameRecord], variant: Variant, profile: ProfileChoice) 
         voxels: mean(records.iter().map(|r| r.voxels as f64)),
         supervoxels: mean(records.iter().map(|r| r.supervoxels as f64)),
         gaussians: mean(records.iter().map(|r| r.gaussians as f64)),
-        primitives: Primitives::default(),
+        clusters: mean(records.iter().map(|r| r.clusters as f64)),
+        objects: mean(records.iter().map(|r| r.objects as f64)),
+        frames_with_plane: mean(records.iter().map(|r| if r.primitives.plane.unwrap_or(0.0) > 0.0 { 1.0 } else { 0.0 })),
+        primitives: Primitives {
+            plane: mean_of(records.iter().map(|r| r.primitives.plane)),
+            sq: None,
+            gmm: mean_of(records.iter().map(|r| r.primitives.gmm)),
+            total: mean_of(records.iter().map(|r| r.primitives.total)),
+        },
         payload_bytes: None,
         g2r_rmse_m: None,
         r2g_rmse_m: None,
-        r_c: None,
-        a_s: None,
-        n_adh: None,
+        r_c: mean_of(records.iter().map(|r| r.r_c)),
+        a_s: mean_of(records.iter().map(|r| r.a_s)),
+        n_adh: mean_of(records.iter().map(|r| r.n_adh)),
         j_sq_deg: None,
         pools,
         overflow_events: records.iter().map(|r| r.overflow_events).sum(),

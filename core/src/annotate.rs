@@ -1,0 +1,228 @@
+//! Stage 4: projection-guided mask annotation of the Gaussians (paper §III-B).
+//!
+//! Each Gaussian's support points are projected with K. They were back-projected from their own pixels with the
+//! same K, so π_K returns exactly those pixels and every support point is valid (V_i is the whole support;
+//! N_proj = N). Masks are candidates when their confidence s_j ≥ `min_confidence` and their box overlaps the
+//! Gaussian's projected box B_i^2D; for candidates the support points inside the mask are counted (one pass
+//! over the points, counts in a small hash table of (Gaussian, instance) pairs). The best candidate maximises the
+//! confidence-weighted support s_j · |inside|, ties to the earlier instance; it is accepted when
+//! N_proj ≥ `min_proj_points`, ρ = |inside| / N_proj > `min_support_ratio` and s_j ≥ `min_confidence`.
+
+use bytemuck::Zeroable;
+
+use crate::frame::Frame;
+use crate::gmm::Gaussian;
+use crate::masks::{MaskPixels, MaskSet};
+use crate::params::Params;
+use crate::points;
+use crate::supervoxel::{self, Voxel};
+
+/// Largest number of instances per frame that annotation considers (the instance index is stored in 8 bits);
+/// further instances are ignored and counted.
+pub const MAX_INSTANCES: usize = 255;
+
+/// Support points of one Gaussian inside one instance mask.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Zeroable)]
+#[repr(C)]
+pub struct MaskHit {
+    /// `(gaussian + 1) << 8 | instance index`; 0 marks a free slot.
+    pub key: u32,
+    /// Points inside the mask.
+    pub count: u32,
+}
+
+impl MaskHit {
+    /// The key of (Gaussian `g`, instance index `k`).
+    #[inline]
+    pub fn key_of(g: usize, k: usize) -> u32 {
+        ((g as u32 + 1) << 8) | (k as u32 & 0xff)
+    }
+
+    /// Gaussian index of an occupied entry.
+    pub fn gaussian(&self) -> usize {
+        (self.key >> 8) as usize - 1
+    }
+
+    /// Instance index of an occupied entry.
+    pub fn instance(&self) -> usize {
+        (self.key & 0xff) as usize
+    }
+}
+
+/// Counts of the annotation stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct AnnotateStats {
+    /// Gaussians that received an instance.
+    pub annotated: u32,
+    /// (Gaussian, instance) pairs with at least one point inside the mask.
+    pub hit_pairs: u32,
+    /// Hits lost because the hit table was full.
+    pub hit_overflows: u32,
+    /// Instances beyond [`MAX_INSTANCES`], ignored.
+    pub ignored_instances: u32,
+}
+
+/// Looks up or inserts the entry for `key`; `None` when the table is full.
+fn entry(hits: &mut [MaskHit], key: u32) -> Option<&mut MaskHit> {
+    let n = hits.len();
+    let mut pos = crate::pool::bucket(key, n);
+    let mut found = None;
+    for _ in 0..n {
+        match hits.get(pos) {
+            Some(h) if h.key == key || h.key == 0 => {
+                found = Some(pos);
+                break;
+            }
+            Some(_) => {}
+            None => break,
+        }
+        pos += 1;
+        if pos == n {
+            pos = 0;
+        }
+    }
+    let h = hits.get_mut(found?)?;
+    h.key = key;
+    Some(h)
+}
+
+/// Points of Gaussian `g` inside instance `k`, from a filled table.
+pub fn hits_of(hits: &[MaskHit], g: usize, k: usize) -> u32 {
+    let key = MaskHit::key_of(g, k);
+    let n = hits.len();
+    let mut pos = crate::pool::bucket(key, n);
+    for _ in 0..n {
+        match hits.get(pos) {
+            Some(h) if h.key == key => return h.count,
+            Some(h) if h.key == 0 => return 0,
+            Some(_) => {}
+            None => return 0,
+        }
+        pos += 1;
+        if pos == n {
+            pos = 0;
+        }
+    }
+    0
+}
+
+/// Whether instance `k` is a candidate at all (score threshold).
+fn is_candidate(masks: &MaskSet<'_>, k: usize, params: &Params) -> bool {
+    masks.instances.get(k).is_some_and(|i| i.score >= params.min_confidence)
+}
+
+#[inline]
+fn boxes_overlap(a: [u16; 4], b: [u16; 4]) -> bool {
+    a[0] <= b[2] && b[0] <= a[2] && a[1] <= b[3] && b[1] <= a[3]
+}
+
+/// Fills `hits` with the support points of each Gaussian inside each candidate mask.
+pub fn count_hits(
+    frame: &Frame<'_>,
+    masks: &MaskSet<'_>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    gaussians: &[Gaussian],
+    hits: &mut [MaskHit],
+    params: &Params,
+) -> AnnotateStats {
+    hits.fill(MaskHit::zeroed());
+    let mut stats = AnnotateStats {
+        ignored_instances: masks.instances.len().saturating_sub(MAX_INSTANCES) as u32,
+        ..Default::default()
+    };
+    let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
+    let r = params.voxel_resolution;
+    let w = frame.width as usize;
+    points::for_each_point(frame, params, |p| {
+        let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
+        let Some(v) = supervoxel::find_voxel(voxels, slots, key).and_then(|i| voxels.get(i)) else { return };
+        let g = v.gaussian as usize;
+        let Some(gauss) = gaussians.get(g) else { return };
+        let mut add = |k: usize| {
+            if let Some(inst) = instances.get(k) {
+                if inst.score >= params.min_confidence && boxes_overlap(inst.bbox, gauss.pixel_bbox) {
+                    match entry(hits, MaskHit::key_of(g, k)) {
+                        Some(h) => h.count += 1,
+                        None => stats.hit_overflows += 1,
+                    }
+                }
+            }
+        };
+        match masks.pixels {
+            MaskPixels::IdImage(ids) => {
+                let id = ids.get(p.v as usize * w + p.u as usize).copied().unwrap_or(0);
+                if id != 0 {
+                    if let Some(k) = instances.iter().position(|i| i.id == id) {
+                        add(k);
+                    }
+                }
+            }
+            MaskPixels::BitPlanes(_) => {
+                for k in 0..instances.len() {
+                    if masks.contains(k, p.u, p.v) {
+                        add(k);
+                    }
+                }
+            }
+        }
+    });
+    stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
+    stats
+}
+
+/// The best match among `candidates` given a hit counter: (instance index, inside count), maximising s_j · count.
+pub fn best_match(
+    masks: &MaskSet<'_>,
+    params: &Params,
+    mut inside: impl FnMut(usize) -> u32,
+) -> Option<(usize, u32)> {
+    let mut best: Option<(f32, usize, u32)> = None;
+    for k in 0..masks.instances.len().min(MAX_INSTANCES) {
+        if !is_candidate(masks, k, params) {
+            continue;
+        }
+        let n = inside(k);
+        if n == 0 {
+            continue;
+        }
+        let score = masks.instances.get(k).map_or(0.0, |i| i.score) * n as f32;
+        if best.is_none_or(|(b, _, _)| score > b) {
+            best = Some((score, k, n));
+        }
+    }
+    best.map(|(_, k, n)| (k, n))
+}
+
+/// Applies the acceptance rule to a unit of `support` points with `inside` of them in instance `k`; writes the
+/// semantic attributes (a, ℓ, s, ρ) through `set`, or clears them.
+pub fn accept(masks: &MaskSet<'_>, params: &Params, support: u32, best: Option<(usize, u32)>, g: &mut Gaussian) -> bool {
+    g.instance = 0;
+    g.class = 0;
+    g.score = 0.0;
+    g.support_ratio = 0.0;
+    let Some((k, inside)) = best else { return false };
+    let Some(inst) = masks.instances.get(k) else { return false };
+    let ratio = if support > 0 { inside as f32 / support as f32 } else { 0.0 };
+    if support >= params.min_proj_points && ratio > params.min_support_ratio && inst.score >= params.min_confidence {
+        g.instance = inst.id;
+        g.class = inst.class;
+        g.score = inst.score;
+        g.support_ratio = ratio;
+        true
+    } else {
+        false
+    }
+}
+
+/// Annotates every Gaussian from the filled hit table.
+pub fn annotate(masks: &MaskSet<'_>, gaussians: &mut [Gaussian], hits: &[MaskHit], params: &Params) -> u32 {
+    let mut annotated = 0;
+    for (g, gauss) in gaussians.iter_mut().enumerate() {
+        let best = best_match(masks, params, |k| hits_of(hits, g, k));
+        if accept(masks, params, gauss.count, best, gauss) {
+            annotated += 1;
+        }
+    }
+    annotated
+}

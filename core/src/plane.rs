@@ -1,0 +1,146 @@
+//! Stages 6–7: flat-plane separation (paper §IV-B, equation 8) and bounded planes (§V-A, equations 9–10).
+//!
+//! A fused cluster is a flat plane when it has at least N_min points, is thin (σ2 ≤ τ_t or λ2/λ0 ≤ τ_λ), extends
+//! in both directions (σ0, σ1 ≥ τ_s) and carries no instance (a = −1): a flat object such as a laptop stays an
+//! object. The plane stores its centroid, tangent frame (e1, e2), normal n = e1 × e2, principal scales,
+//! eigenvalue ratio, colour, source cluster, and the occupied cells of a `g_p` grid in its tangent plane, as a
+//! bitmap of [`PLANE_GRID`]² cells centred on the centroid. One representative point per occupied cell
+//! (its centre, equation 10) reconstructs it; cells come only from support points, so the plane is bounded by
+//! what was observed and never fills unobserved space.
+
+use bytemuck::Zeroable;
+
+use crate::frame::Frame;
+use crate::gmm::{Gaussian, ROLE_PLANE};
+use crate::linalg::{self, Eigen3, Vec3};
+use crate::params::Params;
+use crate::points;
+use crate::supervoxel::{self, Voxel};
+
+/// Cells per side of a plane's occupancy grid (±2 m around the centroid at g_p = 5 cm).
+pub const PLANE_GRID: usize = 80;
+/// Bytes of the occupancy bitmap.
+pub const PLANE_GRID_BYTES: usize = PLANE_GRID * PLANE_GRID / 8;
+
+/// One bounded plane.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct Plane {
+    /// Centroid μ_r, metres.
+    pub centroid: Vec3,
+    /// First tangent direction e1 (largest variance).
+    pub e1: Vec3,
+    /// Second tangent direction e2.
+    pub e2: Vec3,
+    /// Unit normal n = e1 × e2.
+    pub normal: Vec3,
+    /// Principal scales σ0, σ1, σ2 (σ2 is the thickness), metres.
+    pub sigmas: Vec3,
+    /// Eigenvalue ratio λ2/λ0.
+    pub eigen_ratio: f32,
+    /// Support points.
+    pub points: u32,
+    /// Support points outside the occupancy grid (not drawn; counted).
+    pub clipped_points: u32,
+    /// Occupied cells.
+    pub occupied: u16,
+    /// Source fused cluster.
+    pub cluster: u16,
+    /// Mean colour, RGB.
+    pub colour: [u8; 3],
+    /// Occupancy bitmap, row-major over (a, b) cell indices offset by `PLANE_GRID / 2`.
+    pub cells: [u8; PLANE_GRID_BYTES],
+}
+
+/// Equation 8: whether a fused cluster with `points` points, eigen-decomposition `e` and instance `instance`
+/// (0 = none) is a flat plane.
+pub fn is_flat_plane(points: u32, e: &Eigen3, instance: u16, params: &Params) -> bool {
+    let s = e.sigmas();
+    let thin = s[2] <= params.tau_t || e.values[2] <= params.tau_lambda * e.values[0];
+    points >= params.n_min && thin && s[0] >= params.tau_s && s[1] >= params.tau_s && instance == 0
+}
+
+impl Plane {
+    /// A plane from a flat cluster's shape; cells are filled later by [`fill_cells`].
+    pub fn new(centroid: Vec3, e: &Eigen3, points: u32, colour: [u8; 3], cluster: u16) -> Plane {
+        let mut p = Plane::zeroed();
+        p.centroid = centroid;
+        p.e1 = e.vectors[0];
+        p.e2 = e.vectors[1];
+        p.normal = linalg::normalize_or(linalg::cross(e.vectors[0], e.vectors[1]), e.vectors[2]);
+        p.sigmas = e.sigmas();
+        p.eigen_ratio = if e.values[0] > 0.0 { e.values[2] / e.values[0] } else { 0.0 };
+        p.points = points;
+        p.colour = colour;
+        p.cluster = cluster;
+        p
+    }
+
+    /// Cell index (a, b) of a point (equation 9), offset into the grid, or `None` outside it.
+    pub fn cell_of(&self, p: Vec3, g_p: f32) -> Option<(usize, usize)> {
+        let d = linalg::sub(p, self.centroid);
+        let half = (PLANE_GRID / 2) as i32;
+        let a = libm::floorf(linalg::dot(d, self.e1) / g_p) as i32 + half;
+        let b = libm::floorf(linalg::dot(d, self.e2) / g_p) as i32 + half;
+        let range = 0..PLANE_GRID as i32;
+        (range.contains(&a) && range.contains(&b)).then_some((a as usize, b as usize))
+    }
+
+    /// Whether cell (a, b) (grid coordinates) is occupied.
+    pub fn is_occupied(&self, a: usize, b: usize) -> bool {
+        let i = b * PLANE_GRID + a;
+        a < PLANE_GRID && self.cells.get(i / 8).is_some_and(|byte| (byte >> (i % 8)) & 1 == 1)
+    }
+
+    fn occupy(&mut self, a: usize, b: usize) {
+        let i = b * PLANE_GRID + a;
+        if let Some(byte) = self.cells.get_mut(i / 8) {
+            if (*byte >> (i % 8)) & 1 == 0 {
+                *byte |= 1 << (i % 8);
+                self.occupied += 1;
+            }
+        }
+    }
+
+    /// Calls `f` with the representative point of every occupied cell (equation 10), metres, in grid order.
+    pub fn for_each_cell_centre(&self, g_p: f32, mut f: impl FnMut(Vec3)) {
+        let half = (PLANE_GRID / 2) as f32;
+        for b in 0..PLANE_GRID {
+            for a in 0..PLANE_GRID {
+                if self.is_occupied(a, b) {
+                    let u = (a as f32 - half + 0.5) * g_p;
+                    let v = (b as f32 - half + 0.5) * g_p;
+                    f(linalg::add(self.centroid, linalg::add(linalg::scale(self.e1, u), linalg::scale(self.e2, v))));
+                }
+            }
+        }
+    }
+}
+
+/// Marks the occupied cells of every plane from the support points of its plane-role Gaussians.
+pub fn fill_cells(
+    frame: &Frame<'_>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    gaussians: &[Gaussian],
+    planes: &mut [Plane],
+    params: &Params,
+) {
+    if planes.is_empty() {
+        return;
+    }
+    let r = params.voxel_resolution;
+    points::for_each_point(frame, params, |p| {
+        let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
+        let Some(v) = supervoxel::find_voxel(voxels, slots, key).and_then(|i| voxels.get(i)) else { return };
+        let Some(g) = gaussians.get(v.gaussian as usize) else { return };
+        if g.role != ROLE_PLANE {
+            return;
+        }
+        let Some(plane) = planes.get_mut(g.plane as usize) else { return };
+        match plane.cell_of(p.xyz, params.g_p) {
+            Some((a, b)) => plane.occupy(a, b),
+            None => plane.clipped_points += 1,
+        }
+    });
+}

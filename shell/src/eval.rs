@@ -1,0 +1,64 @@
+//! Evaluation metrics of SPEC §4 computed from a processed frame. (This issue: the semantic fusion metrics
+//! N_adh and A_s; the reconstruction metrics come with the evaluation suite.)
+
+use std::collections::HashMap;
+
+use m2smap_core::mapper::CheckedFrame;
+use m2smap_core::supervoxel::is_assigned;
+use m2smap_core::Mapper;
+
+/// Semantic fusion metrics of one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SemanticMetrics {
+    /// Adhesion cases N_adh: fused clusters in which two reference labels each hold ≥ max(20 points, 10 % of the
+    /// cluster's support) and at least one of them is an object.
+    pub n_adh: u32,
+    /// A_s: among fused clusters of ≥ 2 Gaussians, the fraction whose Gaussians share one dominant reference
+    /// label; `None` when there is no such cluster.
+    pub a_s: Option<f64>,
+    /// Fused clusters of ≥ 2 Gaussians.
+    pub multi_gaussian_clusters: u32,
+}
+
+/// The label holding the most points (ties: the smaller label).
+fn dominant(counts: &HashMap<u16, u32>) -> u16 {
+    counts.iter().max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0))).map_or(0, |(&l, _)| l)
+}
+
+/// N_adh and A_s of the last frame; `reference(u, v)` is the reference label of a pixel (ground-truth instance
+/// image when the dataset has one, else the input mask id; 0 = no object).
+pub fn semantic_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>, reference: impl Fn(u16, u16) -> u16) -> SemanticMetrics {
+    let gaussians = mapper.gaussians();
+    let mut per_gaussian: Vec<HashMap<u16, u32>> = vec![HashMap::new(); gaussians.len()];
+    mapper.for_each_labelled_point(checked, |p, v| {
+        if let Some(v) = v.filter(|v| is_assigned(v.gaussian)) {
+            *per_gaussian[v.gaussian as usize].entry(reference(p.u, p.v)).or_insert(0) += 1;
+        }
+    });
+    let mut clusters: HashMap<u16, (HashMap<u16, u32>, Vec<u16>)> = HashMap::new();
+    for (g, counts) in gaussians.iter().zip(&per_gaussian) {
+        let entry = clusters.entry(g.cluster).or_default();
+        for (&l, &c) in counts {
+            *entry.0.entry(l).or_insert(0) += c;
+        }
+        entry.1.push(dominant(counts));
+    }
+    let mut m = SemanticMetrics::default();
+    let mut consistent = 0u32;
+    for (counts, dominants) in clusters.values() {
+        let support: u32 = counts.values().sum();
+        let threshold = 20u32.max((support as f64 * 0.1).ceil() as u32);
+        let strong: Vec<u16> = counts.iter().filter(|(_, &c)| c >= threshold).map(|(&l, _)| l).collect();
+        if strong.len() >= 2 && strong.iter().any(|&l| l != 0) {
+            m.n_adh += 1;
+        }
+        if dominants.len() >= 2 {
+            m.multi_gaussian_clusters += 1;
+            if dominants.iter().all(|&d| d == dominants[0]) {
+                consistent += 1;
+            }
+        }
+    }
+    m.a_s = (m.multi_gaussian_clusters > 0).then(|| consistent as f64 / m.multi_gaussian_clusters as f64);
+    m
+}

@@ -1,0 +1,249 @@
+//! Instance-mask readers (SPEC §5): an id image `masks/<stem>.png` (8- or 16-bit, 0 = none) with
+//! `masks/<stem>.json` = `{"instances": [{"id", "label", "score", "bbox": [x0, y0, x1, y1]}]}`, or YOLO
+//! segmentation text `masks/<stem>.txt` (`class x1 y1 x2 y2 … [conf]`, normalised polygon per line) with a
+//! names file (`masks/names.txt`, one class name per line). A frame without a mask file has no instances.
+
+use std::collections::HashMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use m2smap_core::{Instance, MaskPixels, MaskSet};
+use serde::Deserialize;
+
+/// Category names ↔ the core's class indices, stable over a run.
+#[derive(Debug, Clone, Default)]
+pub struct LabelTable {
+    names: Vec<String>,
+    index: HashMap<String, u16>,
+}
+
+impl LabelTable {
+    /// The class index of `name`, adding it when new.
+    pub fn class_of(&mut self, name: &str) -> u16 {
+        if let Some(&k) = self.index.get(name) {
+            return k;
+        }
+        let k = self.names.len() as u16;
+        self.names.push(name.to_owned());
+        self.index.insert(name.to_owned(), k);
+        k
+    }
+
+    /// The name of class `k`.
+    pub fn name(&self, k: u16) -> &str {
+        self.names.get(k as usize).map_or("?", String::as_str)
+    }
+}
+
+/// The pixels of a frame's masks, owned.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Pixels {
+    /// One id per pixel.
+    Ids(Vec<u16>),
+    /// One bit plane per instance (overlaps allowed).
+    Bits(Vec<u8>),
+}
+
+/// The instance masks of one frame, owned by the shell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameMasks {
+    /// Width, pixels.
+    pub width: u16,
+    /// Height, pixels.
+    pub height: u16,
+    /// Instances.
+    pub instances: Vec<Instance>,
+    /// Pixels.
+    pub pixels: Pixels,
+}
+
+impl FrameMasks {
+    /// The core's borrowed view.
+    pub fn view(&self) -> MaskSet<'_> {
+        MaskSet {
+            width: self.width,
+            height: self.height,
+            instances: &self.instances,
+            pixels: match &self.pixels {
+                Pixels::Ids(ids) => MaskPixels::IdImage(ids),
+                Pixels::Bits(bits) => MaskPixels::BitPlanes(bits),
+            },
+        }
+    }
+
+    /// Instance id of the first instance containing pixel (u, v), 0 for none (the reference label of SPEC §4).
+    pub fn id_at(&self, u: u16, v: u16) -> u16 {
+        let view = self.view();
+        (0..self.instances.len()).find(|&k| view.contains(k, u, v)).and_then(|k| self.instances.get(k)).map_or(0, |i| i.id)
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonInstance {
+    id: u16,
+    label: String,
+    score: f32,
+    bbox: [i64; 4],
+}
+
+#[derive(Deserialize)]
+struct JsonMasks {
+    instances: Vec<JsonInstance>,
+}
+
+/// Reads the masks of frame `stem` from `dir` for a `width × height` frame; `Ok(None)` when it has none.
+pub fn read_frame_masks(dir: &Path, stem: &str, width: u16, height: u16, labels: &mut LabelTable) -> Result<Option<FrameMasks>> {
+    let png = dir.join(format!("{stem}.png"));
+    let txt = dir.join(format!("{stem}.txt"));
+    let masks = if png.is_file() {
+        read_id_masks(&png, &dir.join(format!("{stem}.json")), width, height, labels)?
+    } else if txt.is_file() {
+        let names = read_names(dir)?;
+        read_yolo(&txt, &names, width, height, labels)?
+    } else {
+        return Ok(None);
+    };
+    masks.view().validate(width, height).map_err(|e| {
+        anyhow!("{}: {e}", if png.is_file() { png.display() } else { txt.display() })
+    })?;
+    Ok(Some(masks))
+}
+
+fn read_id_masks(png: &Path, json: &Path, width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
+    let img = image::ImageReader::open(png)
+        .with_context(|| format!("{}: cannot open", png.display()))?
+        .with_guessed_format()
+        .with_context(|| format!("{}: cannot read", png.display()))?
+        .decode()
+        .map_err(|e| anyhow!("{}: cannot decode mask image: {e}", png.display()))?;
+    let (w, h) = (img.width(), img.height());
+    if (w, h) != (width as u32, height as u32) {
+        bail!("{}: mask is {w}x{h} but the frame is {width}x{height}", png.display());
+    }
+    let ids: Vec<u16> = match img {
+        image::DynamicImage::ImageLuma8(m) => m.into_raw().into_iter().map(u16::from).collect(),
+        image::DynamicImage::ImageLuma16(m) => m.into_raw(),
+        other => bail!("{}: mask must be an 8- or 16-bit single-channel PNG, found {:?}", png.display(), other.color()),
+    };
+    let text = fs::read_to_string(json).with_context(|| format!("{}: cannot read (needed beside {})", json.display(), png.display()))?;
+    let parsed: JsonMasks =
+        serde_json::from_str(&text).map_err(|e| anyhow!("{}: malformed instance list: {e}", json.display()))?;
+    let mut instances = Vec::with_capacity(parsed.instances.len());
+    for i in parsed.instances {
+        if !(i.score.is_finite() && (0.0..=1.0).contains(&i.score)) {
+            bail!("{}: instance {} has score {} outside [0, 1]", json.display(), i.id, i.score);
+        }
+        let [x0, y0, x1, y1] = i.bbox;
+        let clamp = |x: i64, hi: u16| x.clamp(0, hi as i64 - 1) as u16;
+        if x0 > x1 || y0 > y1 || x1 < 0 || y1 < 0 || x0 >= width as i64 || y0 >= height as i64 {
+            bail!("{}: instance {} has an empty or out-of-image box {:?}", json.display(), i.id, i.bbox);
+        }
+        instances.push(Instance {
+            id: i.id,
+            class: labels.class_of(&i.label),
+            score: i.score,
+            bbox: [clamp(x0, width), clamp(y0, height), clamp(x1, width), clamp(y1, height)],
+        });
+    }
+    let mut missing: Vec<u16> = ids.iter().copied().filter(|&id| id != 0 && !instances.iter().any(|i| i.id == id)).collect();
+    missing.sort_unstable();
+    missing.dedup();
+    if let Some(id) = missing.first() {
+        bail!("{}: mask id {id} has no entry in {}", png.display(), json.display());
+    }
+    Ok(FrameMasks { width, height, instances, pixels: Pixels::Ids(ids) })
+}
+
+fn read_names(dir: &Path) -> Result<Vec<String>> {
+    for name in ["names.txt", "classes.txt", "coco.names"] {
+        let p = dir.join(name);
+        if p.is_file() {
+            let text = fs::read_to_string(&p).with_context(|| format!("{}: cannot read", p.display()))?;
+            return Ok(text.lines().map(|l| l.trim().to_owned()).filter(|l| !l.is_empty()).collect());
+        }
+    }
+    Ok(Vec::new())
+}
+
+/// Parses YOLO segmentation text into bit planes.
+pub fn read_yolo(path: &Path, names: &[String], width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
+    let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let plane = MaskSet::plane_bytes(width, height);
+    let mut bits = Vec::new();
+    let mut instances = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let bad = |why: &str| anyhow!("{}:{}: {why}: {line:?}", path.display(), n + 1);
+        let mut fields = line.split_whitespace();
+        let class: usize = fields.next().and_then(|c| c.parse().ok()).ok_or_else(|| bad("malformed class"))?;
+        let values: Vec<f64> =
+            fields.map(|f| f.parse::<f64>()).collect::<Result<_, _>>().map_err(|_| bad("malformed number"))?;
+        let (coords, score) = if values.len() % 2 == 1 {
+            (&values[..values.len() - 1], values[values.len() - 1])
+        } else {
+            (&values[..], 1.0)
+        };
+        if coords.len() < 6 {
+            return Err(bad("a polygon needs at least 3 points"));
+        }
+        if !(0.0..=1.0).contains(&score) {
+            return Err(bad("confidence outside [0, 1]"));
+        }
+        if coords.iter().any(|c| !(0.0..=1.0).contains(c)) {
+            return Err(bad("polygon coordinates must be normalised to [0, 1]"));
+        }
+        let poly: Vec<(f64, f64)> =
+            coords.chunks_exact(2).map(|c| (c[0] * width as f64, c[1] * height as f64)).collect();
+        let mut mask = vec![0u8; plane];
+        let bbox = rasterise(&poly, width, height, &mut mask);
+        let Some(bbox) = bbox else { continue }; // a polygon covering no pixel centre
+        let label = names.get(class).cloned().unwrap_or_else(|| format!("class{class}"));
+        instances.push(Instance { id: instances.len() as u16 + 1, class: labels.class_of(&label), score: score as f32, bbox });
+        bits.extend_from_slice(&mask);
+    }
+    Ok(FrameMasks { width, height, instances, pixels: Pixels::Bits(bits) })
+}
+
+/// Even-odd scanline fill of a polygon (pixel coordinates) at pixel centres; returns the covered box.
+fn rasterise(poly: &[(f64, f64)], width: u16, height: u16, mask: &mut [u8]) -> Option<[u16; 4]> {
+    let mut bbox: Option<[u16; 4]> = None;
+    let mut xs = Vec::new();
+    for v in 0..height {
+        let y = v as f64 + 0.5;
+        xs.clear();
+        for (i, &(x0, y0)) in poly.iter().enumerate() {
+            let (x1, y1) = poly[(i + 1) % poly.len()];
+            if (y0 <= y && y < y1) || (y1 <= y && y < y0) {
+                xs.push(x0 + (y - y0) / (y1 - y0) * (x1 - x0));
+            }
+        }
+        xs.sort_by(f64::total_cmp);
+        for pair in xs.chunks_exact(2) {
+            let start = (pair[0] - 0.5).ceil().max(0.0) as i64;
+            let end = ((pair[1] - 0.5).floor() as i64).min(width as i64 - 1);
+            for u in start..=end {
+                let i = v as usize * width as usize + u as usize;
+                mask[i / 8] |= 1 << (i % 8);
+                let (u, v) = (u as u16, v);
+                bbox = Some(match bbox {
+                    None => [u, v, u, v],
+                    Some(b) => [b[0].min(u), b[1].min(v), b[2].max(u), b[3].max(v)],
+                });
+            }
+        }
+    }
+    bbox
+}
+
+/// Where the masks of a run come from: `--masks DIR`, else `DATASET/masks` when it exists.
+pub fn mask_dir(dataset: &Path, explicit: Option<&Path>) -> Option<PathBuf> {
+    match explicit {
+        Some(d) => Some(d.to_owned()),
+        None => Some(dataset.join("masks")).filter(|d| d.is_dir()),
+    }
+}
