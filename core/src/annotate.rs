@@ -11,7 +11,8 @@
 use bytemuck::Zeroable;
 
 use crate::frame::Frame;
-use crate::gmm::Gaussian;
+use crate::gmm::{self, Gaussian};
+use crate::pool::Bounded;
 use crate::masks::{MaskPixels, MaskSet};
 use crate::params::Params;
 use crate::points;
@@ -204,15 +205,118 @@ pub fn accept(masks: &MaskSet<'_>, params: &Params, support: u32, best: Option<(
     let Some((k, inside)) = best else { return false };
     let Some(inst) = masks.instances.get(k) else { return false };
     let ratio = if support > 0 { inside as f32 / support as f32 } else { 0.0 };
+    // ρ of the best candidate is kept even when it is refused: fusion uses it to hold back uncertain fragments.
+    g.support_ratio = ratio;
     if support >= params.min_proj_points && ratio > params.min_support_ratio && inst.score >= params.min_confidence {
         g.instance = inst.id;
         g.class = inst.class;
         g.score = inst.score;
-        g.support_ratio = ratio;
         true
     } else {
         false
     }
+}
+
+/// Most Gaussians cut along a mask boundary per frame; further straddling Gaussians stay whole.
+pub const MAX_MASK_SPLITS: usize = 64;
+
+/// One Gaussian to cut along the boundary of mask `instance`.
+#[derive(Debug, Clone, Copy, Default)]
+struct Cut {
+    gaussian: u16,
+    instance: u8,
+    inside_points: u32,
+    new_gaussian: Option<u16>,
+}
+
+/// Mask-consistent refinement (see `Params::mask_split_min_share`): cuts each Gaussian whose support straddles
+/// the boundary of its best mask into the voxels mostly inside and the voxels mostly outside, then recomputes the
+/// Gaussian statistics. Returns the number of cuts; `hits` must be recounted afterwards when it is not 0.
+#[allow(clippy::too_many_arguments)]
+pub fn cut_along_masks(
+    frame: &Frame<'_>,
+    masks: &MaskSet<'_>,
+    voxels: &mut [Voxel],
+    slots: &[u16],
+    scratch: &mut [u16],
+    gaussians: &mut Bounded<'_, Gaussian>,
+    hits: &[MaskHit],
+    params: &Params,
+) -> u32 {
+    let mut cuts = [Cut::default(); MAX_MASK_SPLITS];
+    let mut n_cuts = 0usize;
+    for (g, gauss) in gaussians.as_mut_slice().iter_mut().enumerate() {
+        gauss.plane = 0;
+        let Some((k, inside)) = best_match(masks, params, |k| hits_of(hits, g, k)) else { continue };
+        let share = libm::ceilf(params.mask_split_min_share * gauss.count as f32) as u32;
+        let least = params.gmm_min_points.max(share);
+        if inside >= least && gauss.count.saturating_sub(inside) >= least {
+            if let Some(c) = cuts.get_mut(n_cuts) {
+                *c = Cut { gaussian: g as u16, instance: k as u8, inside_points: 0, new_gaussian: None };
+                n_cuts += 1;
+                gauss.plane = n_cuts as u8; // marks the Gaussian as cut number n_cuts (1-based) during this stage
+            }
+        }
+    }
+    if n_cuts == 0 {
+        return 0;
+    }
+    // Points inside the mask per voxel of a cut Gaussian.
+    let n = voxels.len().min(scratch.len());
+    let Some(inside) = scratch.get_mut(..n) else { return 0 };
+    inside.fill(0);
+    let r = params.voxel_resolution;
+    {
+        let gauss = gaussians.as_slice();
+        points::for_each_point(frame, params, |p| {
+            let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
+            let Some(vi) = supervoxel::find_voxel(voxels, slots, key) else { return };
+            let Some(g) = voxels.get(vi).and_then(|v| gauss.get(v.gaussian as usize)) else { return };
+            let Some(cut) = (g.plane as usize).checked_sub(1).and_then(|c| cuts.get(c)) else { return };
+            if masks.contains(cut.instance as usize, p.u, p.v) {
+                if let Some(c) = inside.get_mut(vi) {
+                    *c = c.saturating_add(1);
+                }
+            }
+        });
+    }
+    // Points that would move (voxels mostly inside), per cut; a cut that leaves either side too small is dropped.
+    for (v, &c) in voxels.iter().zip(inside.iter()) {
+        let Some(g) = gaussians.get(v.gaussian as usize) else { continue };
+        if let Some(cut) = (g.plane as usize).checked_sub(1).and_then(|i| cuts.get_mut(i)) {
+            if 2 * c as u32 > v.count as u32 {
+                cut.inside_points += v.count as u32;
+            }
+        }
+    }
+    let mut made = 0;
+    for cut in cuts.iter_mut().take(n_cuts) {
+        let Some(g) = gaussians.get(cut.gaussian as usize).copied() else { continue };
+        let outside = g.count.saturating_sub(cut.inside_points);
+        if cut.inside_points < params.gmm_min_points || outside < params.gmm_min_points {
+            continue;
+        }
+        let mut piece = Gaussian::zeroed();
+        piece.supervoxel = g.supervoxel;
+        cut.new_gaussian = gaussians.push(piece).map(|i| i as u16);
+        made += cut.new_gaussian.is_some() as u32;
+    }
+    for (v, &c) in voxels.iter_mut().zip(inside.iter()) {
+        let Some(g) = gaussians.get(v.gaussian as usize) else { continue };
+        let Some(cut) = (g.plane as usize).checked_sub(1).and_then(|i| cuts.get(i)) else { continue };
+        if let Some(new) = cut.new_gaussian {
+            if 2 * c as u32 > v.count as u32 {
+                v.gaussian = new;
+            }
+        }
+    }
+    for g in gaussians.as_mut_slice() {
+        g.plane = 0;
+    }
+    if made > 0 {
+        gmm::recompute_statistics(frame, voxels, slots, scratch, gaussians.as_mut_slice(), params);
+    }
+    made
 }
 
 /// Annotates every Gaussian from the filled hit table.

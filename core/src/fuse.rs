@@ -2,7 +2,8 @@
 //!
 //! Two Gaussians fuse when ψ = ψ_g ∧ ψ_s holds: their AABB gap is at most `d_connect`, their unsigned normal
 //! angle at most `theta_min_deg`, min(l_ij, l_ji) at most `l_min` (ψ_g); and, with semantic fusion, their
-//! instance ids are equal (ψ_s; two unannotated Gaussians may fuse, an object and a plane may not).
+//! instance ids are equal (ψ_s; two unannotated Gaussians may fuse, an object and a plane may not) and neither
+//! is an uncertain object fragment ([`is_uncertain`]).
 //! Connected components of that graph are the fused clusters. The fusion map Γ is kept in every Gaussian's
 //! `cluster` field (fused cluster → original Gaussians is "all Gaussians with that cluster id").
 //!
@@ -31,6 +32,16 @@ pub fn box_gap(a: &Gaussian, b: &Gaussian) -> f32 {
     let high_gap = linalg::sub(a.bbox_min, b.bbox_max);
     let gap = linalg::max_elem(linalg::max_elem(low_gap, high_gap), [0.0; 3]);
     linalg::norm(gap)
+}
+
+/// An unannotated Gaussian with a real part of its support inside a mask — at least
+/// max(`gmm_min_points`, `mask_split_min_share` · N) points, the same test that makes a Gaussian a candidate
+/// for the mask cut — that was neither annotated nor cut apart (too small, or mixed below voxel resolution).
+/// With semantic fusion it fuses with nothing, so object points are never glued to the background through it
+/// (an m2smap extension of ψ_s).
+pub fn is_uncertain(g: &Gaussian, params: &Params) -> bool {
+    let inside = g.support_ratio * g.count as f32;
+    g.instance == 0 && g.support_ratio >= params.mask_split_min_share && inside >= params.gmm_min_points as f32
 }
 
 /// The geometric predicate ψ_g of two Gaussians.
@@ -98,7 +109,7 @@ pub fn fuse(gaussians: &mut [Gaussian], order: &mut [u16], params: &Params) -> F
                 break;
             }
             stats.pair_tests += 1;
-            if semantic && a.instance != b.instance {
+            if semantic && (a.instance != b.instance || is_uncertain(&a, params) || is_uncertain(&b, params)) {
                 continue;
             }
             if geometric_link(&a, &b, cos_theta_min, params) {

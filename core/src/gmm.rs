@@ -143,7 +143,6 @@ pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> Gm
     let mut stats = GmmStats::default();
     gaussians.clear();
     stack.clear();
-    let r = params.voxel_resolution;
 
     // Counting sort of voxel indices by supervoxel.
     let mut next = 0u16;
@@ -169,7 +168,34 @@ pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> Gm
         }
     }
 
-    // Second pass over the points: exact covariance and support box per Gaussian.
+    point_statistics(frame, voxels, slots, gaussians.as_mut_slice(), params);
+    stats
+}
+
+/// Sets a Gaussian's voxel-level statistics from the voxels in `range`: point count, exact mean and mean colour
+/// (from the voxel sums); resets the point-level ones that [`point_statistics`] accumulates.
+pub fn voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel], r: f32) {
+    let (m, points) = range_moments(range, voxels, r);
+    let mut colour = [0u64; 3];
+    for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+        for (c, s) in colour.iter_mut().zip(v.colour_sum) {
+            *c += s as u64;
+        }
+    }
+    let n = points.max(1) as u64;
+    g.mean = m.mean();
+    g.count = points;
+    g.colour = [(colour[0] / n) as u8, (colour[1] / n) as u8, (colour[2] / n) as u8];
+    g.covariance = [0.0; 6];
+    g.bbox_min = [f32::MAX; 3];
+    g.bbox_max = [f32::MIN; 3];
+    g.pixel_bbox = [u16::MAX, u16::MAX, 0, 0];
+}
+
+/// Second pass over the points: the exact covariance (denominator N − 1), eigen frame, 3-D support box and
+/// projected support box of every Gaussian, given its mean from [`voxel_statistics`].
+pub fn point_statistics(frame: &Frame<'_>, voxels: &[Voxel], slots: &[u16], gaussians: &mut [Gaussian], params: &Params) {
+    let r = params.voxel_resolution;
     points::for_each_point(frame, params, |p| {
         let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
         let Some(v) = supervoxel::find_voxel(voxels, slots, key).and_then(|i| voxels.get(i)) else { return };
@@ -190,7 +216,7 @@ pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> Gm
         b[2] = b[2].max(p.u);
         b[3] = b[3].max(p.v);
     });
-    for g in gaussians.as_mut_slice() {
+    for g in gaussians.iter_mut() {
         let k = if g.count > 1 { 1.0 / (g.count - 1) as f32 } else { 0.0 };
         for c in g.covariance.iter_mut() {
             *c *= k;
@@ -199,7 +225,31 @@ pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> Gm
         g.eigenvalues = e.values;
         g.axes = e.vectors;
     }
-    stats
+}
+
+/// Recomputes every Gaussian's statistics after voxels changed Gaussian: groups the voxel indices by Gaussian in
+/// `order`, then [`voxel_statistics`] per Gaussian and one [`point_statistics`] pass.
+pub fn recompute_statistics(frame: &Frame<'_>, voxels: &[Voxel], slots: &[u16], order: &mut [u16], gaussians: &mut [Gaussian], params: &Params) {
+    let n = voxels.len().min(order.len());
+    let Some(order) = order.get_mut(..n) else { return };
+    for (i, o) in order.iter_mut().enumerate() {
+        *o = i as u16;
+    }
+    let label = |i: u16| voxels.get(i as usize).map_or(u16::MAX, |v| v.gaussian);
+    order.sort_unstable_by(|&a, &b| label(a).cmp(&label(b)).then(a.cmp(&b)));
+    let mut start = 0;
+    while start < n {
+        let g = order.get(start).map_or(u16::MAX, |&i| label(i));
+        let mut end = start + 1;
+        while end < n && order.get(end).map_or(u16::MAX, |&i| label(i)) == g {
+            end += 1;
+        }
+        if let (Some(gauss), Some(range)) = (gaussians.get_mut(g as usize), order.get(start..end)) {
+            voxel_statistics(gauss, range, voxels, params.voxel_resolution);
+        }
+        start = end;
+    }
+    point_statistics(frame, voxels, slots, gaussians, params);
 }
 
 /// Weighted voxel-centroid moments of the range, and its point count.
@@ -263,20 +313,8 @@ fn process(
     }
     // Leaf: one Gaussian.
     let Some(range) = order.get(task.start as usize..task.end as usize) else { return };
-    let mut colour = [0u64; 3];
-    for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
-        for (c, s) in colour.iter_mut().zip(v.colour_sum) {
-            *c += s as u64;
-        }
-    }
-    let n = points.max(1) as u64;
     let mut g = Gaussian::zeroed();
-    g.mean = m.mean();
-    g.count = points;
-    g.colour = [(colour[0] / n) as u8, (colour[1] / n) as u8, (colour[2] / n) as u8];
-    g.bbox_min = [f32::MAX; 3];
-    g.bbox_max = [f32::MIN; 3];
-    g.pixel_bbox = [u16::MAX, u16::MAX, 0, 0];
+    voxel_statistics(&mut g, range, voxels, r);
     g.supervoxel = task.supervoxel;
     let label = match gaussians.push(g) {
         Some(id) => id as u16,

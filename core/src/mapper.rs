@@ -58,6 +58,8 @@ pub struct FrameReport {
     pub gaussians: u32,
     /// Gaussians that received an instance annotation.
     pub annotated: u32,
+    /// Gaussians cut along a mask boundary before annotation.
+    pub mask_cuts: u32,
     /// Fused clusters.
     pub clusters: u32,
     /// R_c = |C_g| / |fused clusters|.
@@ -238,6 +240,32 @@ impl<'s> Mapper<'s> {
         );
         self.hit_overflows = stats.hit_overflows;
         self.report.ignored_instances = stats.ignored_instances;
+        if self.params.variant.semantic_fusion() && self.params.mask_split_min_share < 1.0 {
+            let cuts = annotate::cut_along_masks(
+                &checked.frame,
+                &masks,
+                self.voxels.as_mut_slice(),
+                self.slots,
+                self.scratch,
+                &mut self.gaussians,
+                self.mask_hits,
+                &self.params,
+            );
+            self.report.mask_cuts = cuts;
+            if cuts > 0 {
+                let again = annotate::count_hits(
+                    &checked.frame,
+                    &masks,
+                    self.voxels.as_slice(),
+                    self.slots,
+                    self.gaussians.as_slice(),
+                    self.mask_hits,
+                    &self.params,
+                );
+                self.hit_overflows += again.hit_overflows;
+                self.report.gaussians = self.gaussians.len() as u32;
+            }
+        }
         if self.params.variant.semantic_fusion() {
             self.report.annotated = annotate::annotate(&masks, self.gaussians.as_mut_slice(), self.mask_hits, &self.params);
         }

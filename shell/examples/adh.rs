@@ -14,7 +14,7 @@ fn main() {
     let mut st = bytemuck::zeroed_box::<HostStorage>();
     let mut mapper = Mapper::new(&mut *st, Params { variant, ..Params::default() }).unwrap();
     let view = f.view(&d.camera);
-    mapper.process(view, Some(m.view())).unwrap();
+    let rep = *mapper.process(view, Some(m.view())).unwrap(); println!("cuts {} gaussians {}", rep.mask_cuts, rep.gaussians);
     let checked = mapper.check(view, Some(m.view())).unwrap();
     let gs = mapper.gaussians();
     let mut per_g: Vec<HashMap<u16,u32>> = vec![HashMap::new(); gs.len()];
