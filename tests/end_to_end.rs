@@ -289,3 +289,38 @@ fn copy_dir(from: &Path, to: &Path) {
         }
     }
 }
+
+#[test]
+fn cabinet_floor_is_a_plane_and_full_fusion_never_glues_the_cabinet() {
+    let Some(data) = shared_data("tum_fr3_cabinet") else { return };
+    let run = |variant: &str| {
+        let out = tempfile::tempdir().unwrap();
+        let summary = run_ok(&data, out.path(), &["--variant", variant]);
+        (summary, frames_jsonl(out.path()))
+    };
+    let (full, frames) = run("full");
+    let (pmsao, _) = run("pmsao");
+    assert_eq!(full["n_adh"].as_f64(), Some(0.0), "full: no adhesion on any cabinet frame");
+    assert!(pmsao["n_adh"].as_f64().unwrap() > 0.0, "pmsao glues the cabinet somewhere");
+    assert!(frames.iter().all(|f| f["instances"] == 1), "every frame has its cabinet mask");
+    assert!(frames.iter().all(|f| f["objects"].as_u64().unwrap() == 1), "the cabinet is one object in every frame");
+    // The floor: a plane whose normal is the world's vertical (TUM's motion-capture frame has z up).
+    let d = Dataset::open(&data, None).unwrap();
+    let mut storage = bytemuck::zeroed_box::<m2smap_core::HostStorage>();
+    let mut mapper = m2smap_core::Mapper::new(&mut *storage, m2smap_core::Params::default()).unwrap();
+    let mut labels = m2smap::masks::LabelTable::default();
+    let mut with_floor = 0;
+    for (k, f) in d.frames.iter().enumerate() {
+        let frame = d.load(k).unwrap();
+        let masks = m2smap::masks::read_frame_masks(&data.join("masks"), &f.stem, 640, 480, &mut labels).unwrap();
+        mapper.process(frame.view(&d.camera), masks.as_ref().map(|m| m.view())).unwrap();
+        let r = f.pose.unwrap().rotation();
+        let vertical = |n: [f32; 3]| (r[2][0] * n[0] as f64 + r[2][1] * n[1] as f64 + r[2][2] * n[2] as f64).abs();
+        if mapper.planes().iter().any(|p| vertical(p.normal) > 0.95 && p.occupied >= 50) {
+            with_floor += 1;
+        }
+    }
+    let share = with_floor as f64 / d.frames.len() as f64;
+    println!("floor plane on {with_floor} of {} frames", d.frames.len());
+    assert!(share >= 0.9, "the floor is a bounded plane on only {share:.2} of the frames");
+}

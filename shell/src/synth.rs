@@ -10,6 +10,8 @@ use m2smap_core::points::mix32;
 use serde::Serialize;
 
 use crate::dataset::{Camera, LoadedFrame, Pose};
+use crate::masks::{FrameMasks, LabelTable, Pixels};
+use m2smap_core::Instance;
 
 /// Geometry of one surface, world frame (z up), metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -117,7 +119,7 @@ pub struct Scene {
 }
 
 /// The names of the built-in scenes.
-pub const SCENES: [&str; 2] = ["tabletop", "shelf"];
+pub const SCENES: [&str; 3] = ["tabletop", "shelf", "desk"];
 
 fn plane(name: &str, normal: [f64; 3], offset: f64, colour: [u8; 3]) -> Surface {
     Surface { name: name.into(), instance: 0, label: String::new(), shape: Shape::Plane { normal, offset }, colour }
@@ -146,6 +148,15 @@ impl Scene {
                 cuboid("cabinet", 1, "cabinet", [0.0, 1.1, 0.35], [0.35, 0.3, 0.35], 0.0, [120, 80, 40]),
                 cuboid("crate", 2, "box", [-0.55, 1.0, 0.2], [0.2, 0.2, 0.2], 0.0, [60, 160, 60]),
                 cuboid("slab", 3, "laptop", [0.45, 0.5, 0.015], [0.17, 0.12, 0.015], 0.2, [40, 40, 45]),
+            ],
+            // Flat objects on the floor: a 2 cm board as large as a table top (plane-sized, σ0, σ1 > τ_s) and a
+            // low 8 cm box, both within l_min of the floor plane, beside a tall box.
+            "desk" => vec![
+                plane("floor", [0.0, 0.0, 1.0], 0.0, [150, 150, 140]),
+                plane("wall", [0.0, -1.0, 0.0], -1.8, [205, 205, 195]),
+                cuboid("board", 1, "laptop", [-0.25, 0.55, 0.01], [0.32, 0.26, 0.01], 0.15, [35, 35, 40]),
+                cuboid("lowbox", 2, "book", [0.45, 0.45, 0.04], [0.14, 0.11, 0.04], -0.3, [180, 40, 40]),
+                cuboid("tower", 3, "box", [0.3, 1.2, 0.3], [0.15, 0.15, 0.3], 0.2, [40, 120, 200]),
             ],
             other => bail!("unknown scene {other:?} (known: {})", SCENES.join(", ")),
         };
@@ -223,9 +234,32 @@ impl Scene {
         frame.surface.iter().map(|&s| if s == 0 { 0 } else { self.surfaces[s as usize - 1].instance }).collect()
     }
 
-    /// Writes `frames` frames as a TUM folder with `groundtruth.txt`, `camera.json` and `gt/`.
+    /// Perfect instance masks of a rendered frame: the ground-truth instance image and one instance per visible
+    /// object (score 1, tight box).
+    pub fn perfect_masks(&self, frame: &SynthFrame, labels: &mut LabelTable) -> FrameMasks {
+        let ids = self.instance_image(frame);
+        let w = self.camera.width as usize;
+        let mut instances: Vec<Instance> = Vec::new();
+        for (i, &id) in ids.iter().enumerate() {
+            if id == 0 {
+                continue;
+            }
+            let (u, v) = ((i % w) as u16, (i / w) as u16);
+            match instances.iter_mut().find(|x| x.id == id) {
+                Some(x) => x.bbox = [x.bbox[0].min(u), x.bbox[1].min(v), x.bbox[2].max(u), x.bbox[3].max(v)],
+                None => {
+                    let label = self.surfaces.iter().find(|s| s.instance == id).map_or("object", |s| s.label.as_str());
+                    instances.push(Instance { id, class: labels.class_of(label), score: 1.0, bbox: [u, v, u, v] });
+                }
+            }
+        }
+        instances.sort_by_key(|x| x.id);
+        FrameMasks { width: self.camera.width, height: self.camera.height, instances, pixels: Pixels::Ids(ids) }
+    }
+
+    /// Writes `frames` frames as a TUM folder with `groundtruth.txt`, `camera.json`, `gt/` and perfect `masks/`.
     pub fn write_tum(&self, out: &Path, frames: usize, seed: u32, noise: bool) -> Result<()> {
-        for sub in ["rgb", "depth", "gt"] {
+        for sub in ["rgb", "depth", "gt", "masks"] {
             fs::create_dir_all(out.join(sub)).with_context(|| format!("{}: cannot create", out.join(sub).display()))?;
         }
         let (mut rgb_list, mut depth_list, mut gt_list) = (String::new(), String::new(), String::new());
@@ -240,6 +274,19 @@ impl Scene {
             save(&out.join(format!("rgb/{stem}.png")), image::RgbImage::from_raw(w, h, f.frame.colour.clone()))?;
             save(&out.join(format!("depth/{stem}.png")), image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, f.frame.depth.clone()))?;
             save(&out.join(format!("gt/{stem}.png")), image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, self.instance_image(&f)))?;
+            let masks = self.perfect_masks(&f, &mut LabelTable::default());
+            if let Pixels::Ids(ids) = &masks.pixels {
+                save(&out.join(format!("masks/{stem}.png")), image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, ids.clone()))?;
+            }
+            let list: Vec<serde_json::Value> = masks
+                .instances
+                .iter()
+                .map(|i| {
+                    let label = self.surfaces.iter().find(|s| s.instance == i.id).map_or("object", |s| s.label.as_str());
+                    serde_json::json!({ "id": i.id, "label": label, "score": i.score, "bbox": i.bbox })
+                })
+                .collect();
+            write(&out.join(format!("masks/{stem}.json")), &serde_json::to_string(&serde_json::json!({ "instances": list }))?)?;
             rgb_list.push_str(&format!("{stem} rgb/{stem}.png\n"));
             depth_list.push_str(&format!("{stem} depth/{stem}.png\n"));
             let (p, q) = (f.pose.t, f.pose.q);

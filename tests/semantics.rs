@@ -1,0 +1,156 @@
+//! Stages 4–8 against ground truth: annotation, semantic fusion, flat planes and bounded planes on synthetic
+//! scenes with perfect masks (the ground-truth instance images).
+
+use m2smap::eval::semantic_metrics;
+use m2smap::masks::LabelTable;
+use m2smap::synth::{Scene, SynthFrame};
+use m2smap_core::gmm::{ROLE_OBJECT, ROLE_PLANE};
+use m2smap_core::supervoxel::is_assigned;
+use m2smap_core::{HostStorage, Mapper, Params, Variant};
+
+/// Per-frame facts the tests check.
+struct Mapped {
+    n_adh: u32,
+    a_s: Option<f64>,
+    /// Points of instance `id` (ground truth) by the role of their Gaussian: (plane, object with that id, other).
+    roles_of: Box<dyn Fn(u16) -> (u32, u32, u32)>,
+    planes: usize,
+}
+
+fn map(scene: &Scene, frame: &SynthFrame, variant: Variant, with_masks: bool) -> Mapped {
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params { variant, ..Params::default() }).unwrap();
+    let masks = scene.perfect_masks(frame, &mut LabelTable::default());
+    let view = frame.frame.view(&scene.camera);
+    let m = with_masks.then(|| masks.view());
+    mapper.process(view, m).unwrap();
+    let checked = mapper.check(view, m).unwrap();
+    let gt = scene.instance_image(frame);
+    let w = scene.camera.width as usize;
+    let metrics = semantic_metrics(&mapper, &checked, |u, v| gt[v as usize * w + u as usize]);
+    let mut samples = Vec::new();
+    mapper.for_each_labelled_point(&checked, |p, v| {
+        if let Some(g) = v.filter(|v| is_assigned(v.gaussian)).and_then(|v| mapper.gaussians().get(v.gaussian as usize)) {
+            samples.push((gt[p.v as usize * w + p.u as usize], g.role, g.instance));
+        }
+    });
+    Mapped {
+        n_adh: metrics.n_adh,
+        a_s: metrics.a_s,
+        planes: mapper.planes().len(),
+        roles_of: Box::new(move |id| {
+            let mut r = (0, 0, 0);
+            for &(label, role, inst) in samples.iter().filter(|s| s.0 == id) {
+                match role {
+                    ROLE_PLANE => r.0 += 1,
+                    ROLE_OBJECT if inst == id => r.1 += 1,
+                    _ => r.2 += 1,
+                }
+                let _ = label;
+            }
+            r
+        }),
+    }
+}
+
+fn desk_frames() -> Vec<(Scene, SynthFrame)> {
+    let scene = Scene::named("desk").unwrap();
+    [0usize, 5].iter().map(|&k| (scene.clone(), scene.render(k, Some(4)))).collect()
+}
+
+#[test]
+fn full_fusion_keeps_objects_off_the_floor_and_geometry_only_glues_them() {
+    for (scene, frame) in desk_frames() {
+        let full = map(&scene, &frame, Variant::Full, true);
+        assert_eq!(full.n_adh, 0, "full must not glue objects to the floor or to each other");
+        assert_eq!(full.a_s, Some(1.0), "every multi-Gaussian cluster of full has one dominant label");
+        let pmsao = map(&scene, &frame, Variant::Pmsao, true);
+        assert!(pmsao.n_adh > 0, "geometry-only fusion glues the board and the low box to the floor");
+        // The low box (8 cm, instance 2): its top lies within l_min of the floor plane.
+        let (plane, object, _) = (full.roles_of)(2);
+        // Only edge voxels (3 cm, half floor) may go to the floor: at most 5 % of the box's points.
+        assert!(plane * 20 <= plane + object, "full: {plane} of {} low-box points became floor plane", plane + object);
+        let (plane_p, _, _) = (pmsao.roles_of)(2);
+        assert!(plane_p > 5 * plane.max(1), "pmsao: the low box's top should be swallowed by the floor ({plane_p})");
+    }
+}
+
+#[test]
+fn a_thin_object_with_a_mask_is_not_a_flat_plane() {
+    for (scene, frame) in desk_frames() {
+        // The board (instance 1, 64 x 52 x 2 cm) is plane-sized: σ0, σ1 > τ_s and σ2 ≈ 6 mm.
+        let with = map(&scene, &frame, Variant::Full, true);
+        let (plane, object, other) = (with.roles_of)(1);
+        let total = plane + object + other;
+        assert!(total > 500, "the board must be well visible ({total} points)");
+        assert!(object as f64 >= 0.9 * total as f64, "with its mask the board is an object: {plane}/{object}/{other}");
+        // Only its rim (voxels shared with the floor 2 cm below) may go to the floor plane.
+        assert!(plane as f64 <= 0.05 * total as f64, "with its mask the board is not plane support: {plane}/{total}");
+        let without = map(&scene, &frame, Variant::Full, false);
+        let (plane, _, _) = (without.roles_of)(1);
+        assert!(plane as f64 >= 0.5 * total as f64, "without a mask the same board is plane support: {plane}/{total}");
+        assert!(without.planes >= 1);
+    }
+}
+
+#[test]
+fn bounded_planes_cover_the_visible_floor_and_no_unobserved_cell() {
+    use std::collections::HashSet;
+    let scene = Scene::named("tabletop").unwrap();
+    for k in [0usize, 6] {
+        let frame = scene.render(k, None);
+        let mut storage = bytemuck::zeroed_box::<HostStorage>();
+        let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+        let masks = scene.perfect_masks(&frame, &mut LabelTable::default());
+        let view = frame.frame.view(&scene.camera);
+        mapper.process(view, Some(masks.view())).unwrap();
+        let checked = mapper.check(view, Some(masks.view())).unwrap();
+        let planes = mapper.planes().to_vec();
+        let g_p = mapper.params().g_p;
+        // The floor plane: normal along world z.
+        let up = |n: [f32; 3]| {
+            let r = frame.pose.rotation();
+            (r[2][0] * n[0] as f64 + r[2][1] * n[1] as f64 + r[2][2] * n[2] as f64).abs()
+        };
+        let floor = planes.iter().position(|p| up(p.normal) > 0.99).expect("the floor is a plane");
+        let mut cells_from_points = vec![HashSet::new(); planes.len()];
+        let (mut floor_points, mut covered) = (0u32, 0u32);
+        let w = scene.camera.width as usize;
+        mapper.for_each_labelled_point(&checked, |p, v| {
+            let g = v.filter(|v| is_assigned(v.gaussian)).and_then(|v| mapper.gaussians().get(v.gaussian as usize));
+            if let Some(g) = g.filter(|g| g.role == ROLE_PLANE) {
+                if let Some(c) = planes[g.plane as usize].cell_of(p.xyz, g_p) {
+                    cells_from_points[g.plane as usize].insert(c);
+                }
+            }
+            if frame.surface[p.v as usize * w + p.u as usize] == 1 {
+                floor_points += 1;
+                if planes[floor].cell_of(p.xyz, g_p).is_some_and(|(a, b)| planes[floor].is_occupied(a, b)) {
+                    covered += 1;
+                }
+            }
+        });
+        for (i, plane) in planes.iter().enumerate() {
+            let mut occupied = HashSet::new();
+            for b in 0..m2smap_core::plane::PLANE_GRID {
+                for a in 0..m2smap_core::plane::PLANE_GRID {
+                    if plane.is_occupied(a, b) {
+                        occupied.insert((a, b));
+                    }
+                }
+            }
+            assert_eq!(occupied.len(), plane.occupied as usize);
+            assert_eq!(occupied, cells_from_points[i], "plane {i}: every occupied cell, and only those, holds support");
+            let mut worst = 0.0f64;
+            plane.for_each_cell_centre(g_p, |c| {
+                let world = frame.pose.apply(c.map(f64::from));
+                let d = scene.surfaces.iter().map(|s| s.distance(world)).fold(f64::INFINITY, f64::min);
+                worst = worst.max(d);
+            });
+            assert!(worst <= 0.01, "plane {i}: a representative point lies {worst:.4} m off every true surface");
+        }
+        let coverage = covered as f64 / floor_points as f64;
+        println!("frame {k}: {} planes, floor coverage {coverage:.3}", planes.len());
+        assert!(coverage >= 0.9, "the floor plane covers only {coverage:.3} of the visible floor's points");
+    }
+}
