@@ -7,29 +7,36 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use m2smap::dataset::{Camera, Dataset, LoadedFrame};
+use m2smap::masks::{read_frame_masks, FrameMasks, LabelTable};
 use m2smap::run::median;
 use m2smap::synth::Scene;
 use m2smap_core::{HostStorage, Mapper, McuStorage, Params, Profile};
 
 const REPS: usize = 3;
-const STAGES: [&str; 4] = ["points+voxels", "supervoxels", "gaussians", "total"];
+const STAGES: [&str; 6] = ["points+voxels", "supervoxels", "gaussians", "annotate", "fuse+planes+objects", "total"];
 
-fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &[LoadedFrame]) {
+type Frames = Vec<(LoadedFrame, Option<FrameMasks>)>;
+
+fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &Frames) {
     let mut mapper = Mapper::new(storage, Params::default()).expect("default parameters");
-    let mut times: [Vec<f64>; 4] = Default::default();
+    let mut times: [Vec<f64>; 6] = Default::default();
     let mut gaussians = Vec::new();
-    for frame in frames {
+    for (frame, masks) in frames {
         for _ in 0..REPS {
             let t0 = Instant::now();
-            let checked = mapper.check(frame.view(camera), None).expect("valid frame");
+            let checked = mapper.check(frame.view(camera), masks.as_ref().map(|m| m.view())).expect("valid frame");
             mapper.stage_voxels(&checked);
             let t1 = Instant::now();
             mapper.stage_supervoxels();
             let t2 = Instant::now();
             mapper.stage_gaussians(&checked);
-            let report = *mapper.finish_frame();
             let t3 = Instant::now();
-            for (k, (a, b)) in [(t0, t1), (t1, t2), (t2, t3), (t0, t3)].into_iter().enumerate() {
+            mapper.stage_annotate(&checked);
+            let t4 = Instant::now();
+            mapper.stage_separate(&checked);
+            let report = *mapper.finish_frame();
+            let t5 = Instant::now();
+            for (k, (a, b)) in [(t0, t1), (t1, t2), (t2, t3), (t3, t4), (t4, t5), (t0, t5)].into_iter().enumerate() {
                 times[k].push((b - a).as_secs_f64() * 1e3);
             }
             gaussians.push(report.gaussians as f64);
@@ -41,22 +48,28 @@ fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &[Loa
         frames.len(),
         cells.join(" | "),
         median(&gaussians),
-        1e3 / median(&times[3])
+        1e3 / median(&times[5])
     );
 }
 
-fn load(name: &str, limit: usize) -> Option<(Camera, Vec<LoadedFrame>)> {
+fn load(name: &str, limit: usize) -> Option<(Camera, Frames)> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(name);
     let d = Dataset::open(&root, None).ok()?;
     let step = (d.frames.len() / limit).max(1);
-    let frames = (0..d.frames.len()).step_by(step).take(limit).map(|i| d.load(i)).collect::<Result<Vec<_>, _>>().ok()?;
+    let mut labels = LabelTable::default();
+    let mut frames = Vec::new();
+    for i in (0..d.frames.len()).step_by(step).take(limit) {
+        let f = d.load(i).ok()?;
+        let masks = read_frame_masks(&root.join("masks"), &d.frames[i].stem, f.width, f.height, &mut labels).ok()?;
+        frames.push((f, masks));
+    }
     Some((d.camera, frames))
 }
 
 fn main() {
     println!("median ms per stage (single thread, release, {REPS} repetitions of each frame)\n");
     println!("| data (profile) | frames | {} | Gaussians | Hz |", STAGES.join(" | "));
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut host = bytemuck::zeroed_box::<HostStorage>();
     let mut mcu = bytemuck::zeroed_box::<McuStorage>();
     for (name, limit) in [("tum_fr3_cabinet", 58), ("7scenes_redkitchen", 60)] {
@@ -68,9 +81,15 @@ fn main() {
             None => eprintln!("skipped: ../shared/data/{name} not found"),
         }
     }
-    for scene in ["tabletop", "shelf"] {
+    for scene in ["tabletop", "desk"] {
         let s = Scene::named(scene).expect("built-in scene");
-        let frames: Vec<LoadedFrame> = (0..10).map(|k| s.render(k, Some(1)).frame).collect();
+        let frames: Frames = (0..10)
+            .map(|k| {
+                let f = s.render(k, Some(1));
+                let masks = s.perfect_masks(&f, &mut LabelTable::default());
+                (f.frame, Some(masks))
+            })
+            .collect();
         bench(&format!("synthetic {scene} (host)"), &mut *host, &s.camera, &frames);
     }
 }
