@@ -46,6 +46,7 @@ pub mod plane;
 pub mod points;
 pub mod pool;
 pub mod profile;
+pub mod superquadric;
 pub mod supervoxel;
 
 pub use error::{FrameError, MaskError, ParamError};

@@ -66,6 +66,172 @@ pub fn normalize_or(a: Vec3, fallback: Vec3) -> Vec3 {
     }
 }
 
+/// A 3×3 matrix, row-major.
+pub type Mat3 = [[f32; 3]; 3];
+
+/// The 3×3 identity.
+pub const IDENTITY: Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+/// M · v.
+#[inline]
+pub fn mat_vec(m: &Mat3, v: Vec3) -> Vec3 {
+    [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
+}
+
+/// Mᵀ · v.
+#[inline]
+pub fn mat_t_vec(m: &Mat3, v: Vec3) -> Vec3 {
+    [
+        m[0][0] * v[0] + m[1][0] * v[1] + m[2][0] * v[2],
+        m[0][1] * v[0] + m[1][1] * v[1] + m[2][1] * v[2],
+        m[0][2] * v[0] + m[1][2] * v[1] + m[2][2] * v[2],
+    ]
+}
+
+/// Column `k` of M.
+#[inline]
+pub fn column(m: &Mat3, k: usize) -> Vec3 {
+    let k = k.min(2);
+    let [r0, r1, r2] = m;
+    [r0.get(k).copied().unwrap_or(0.0), r1.get(k).copied().unwrap_or(0.0), r2.get(k).copied().unwrap_or(0.0)]
+}
+
+/// The matrix with the given columns.
+#[inline]
+pub fn from_columns(c0: Vec3, c1: Vec3, c2: Vec3) -> Mat3 {
+    [[c0[0], c1[0], c2[0]], [c0[1], c1[1], c2[1]], [c0[2], c1[2], c2[2]]]
+}
+
+/// A · B.
+pub fn mat_mul(a: &Mat3, b: &Mat3) -> Mat3 {
+    let (b0, b1, b2) = (column(b, 0), column(b, 1), column(b, 2));
+    [
+        [dot(a[0], b0), dot(a[0], b1), dot(a[0], b2)],
+        [dot(a[1], b0), dot(a[1], b1), dot(a[1], b2)],
+        [dot(a[2], b0), dot(a[2], b1), dot(a[2], b2)],
+    ]
+}
+
+/// Aᵀ.
+pub fn transpose(a: &Mat3) -> Mat3 {
+    from_columns(a[0], a[1], a[2])
+}
+
+/// Rotation matrix of a rotation vector (axis × angle, radians), by Rodrigues' formula.
+pub fn rotation_from_vector(r: Vec3) -> Mat3 {
+    let theta = norm(r);
+    if theta < 1e-9 {
+        return [[1.0, -r[2], r[1]], [r[2], 1.0, -r[0]], [-r[1], r[0], 1.0]];
+    }
+    let k = scale(r, 1.0 / theta);
+    let (s, c) = (libm::sinf(theta), libm::cosf(theta));
+    let v = 1.0 - c;
+    [
+        [c + k[0] * k[0] * v, k[0] * k[1] * v - k[2] * s, k[0] * k[2] * v + k[1] * s],
+        [k[1] * k[0] * v + k[2] * s, c + k[1] * k[1] * v, k[1] * k[2] * v - k[0] * s],
+        [k[2] * k[0] * v - k[1] * s, k[2] * k[1] * v + k[0] * s, c + k[2] * k[2] * v],
+    ]
+}
+
+/// Unit quaternion `[x, y, z, w]` of a rotation matrix (w ≥ 0).
+pub fn quat_from_matrix(m: &Mat3) -> [f32; 4] {
+    let tr = m[0][0] + m[1][1] + m[2][2];
+    let q = if tr > 0.0 {
+        let s = libm::sqrtf(tr + 1.0) * 2.0;
+        [(m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s, 0.25 * s]
+    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
+        let s = libm::sqrtf(1.0 + m[0][0] - m[1][1] - m[2][2]) * 2.0;
+        [0.25 * s, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s, (m[2][1] - m[1][2]) / s]
+    } else if m[1][1] > m[2][2] {
+        let s = libm::sqrtf(1.0 + m[1][1] - m[0][0] - m[2][2]) * 2.0;
+        [(m[0][1] + m[1][0]) / s, 0.25 * s, (m[1][2] + m[2][1]) / s, (m[0][2] - m[2][0]) / s]
+    } else {
+        let s = libm::sqrtf(1.0 + m[2][2] - m[0][0] - m[1][1]) * 2.0;
+        [(m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, 0.25 * s, (m[1][0] - m[0][1]) / s]
+    };
+    quat_normalize(if q[3] < 0.0 { [-q[0], -q[1], -q[2], -q[3]] } else { q })
+}
+
+/// q / ‖q‖ (identity when zero).
+pub fn quat_normalize(q: [f32; 4]) -> [f32; 4] {
+    let n = libm::sqrtf(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if n > 1e-12 {
+        [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
+    } else {
+        [0.0, 0.0, 0.0, 1.0]
+    }
+}
+
+/// Rotation matrix of a unit quaternion `[x, y, z, w]`.
+pub fn matrix_from_quat(q: [f32; 4]) -> Mat3 {
+    let [x, y, z, w] = quat_normalize(q);
+    [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
+    ]
+}
+
+/// Spherical interpolation from `a` (t = 0) to `b` (t = 1) along the shortest path (b is negated when a·b < 0).
+pub fn slerp(a: [f32; 4], b: [f32; 4], t: f32) -> [f32; 4] {
+    let mut d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
+    let b = if d < 0.0 {
+        d = -d;
+        [-b[0], -b[1], -b[2], -b[3]]
+    } else {
+        b
+    };
+    let (wa, wb) = if d > 0.9995 {
+        (1.0 - t, t)
+    } else {
+        let theta = libm::acosf(d.min(1.0));
+        let s = libm::sinf(theta);
+        (libm::sinf((1.0 - t) * theta) / s, libm::sinf(t * theta) / s)
+    };
+    quat_normalize([wa * a[0] + wb * b[0], wa * a[1] + wb * b[1], wa * a[2] + wb * b[2], wa * a[3] + wb * b[3]])
+}
+
+/// Angle of the rotation Aᵀ·B, radians (the geodesic distance between two rotations).
+pub fn rotation_angle_between(a: &Mat3, b: &Mat3) -> f32 {
+    let m = mat_mul(&transpose(a), b);
+    let c = ((m[0][0] + m[1][1] + m[2][2] - 1.0) * 0.5).clamp(-1.0, 1.0);
+    libm::acosf(c)
+}
+
+/// Solves the N×N system A x = b in place by Gaussian elimination with partial pivoting; `b` becomes x.
+/// Returns false when A is singular.
+#[allow(clippy::indexing_slicing, clippy::needless_range_loop)] // all indices < N by the loop bounds
+pub fn solve<const N: usize>(a: &mut [[f32; N]; N], b: &mut [f32; N]) -> bool {
+    for col in 0..N {
+        let mut pivot = col;
+        for row in col + 1..N {
+            if libm::fabsf(a[row][col]) > libm::fabsf(a[pivot][col]) {
+                pivot = row;
+            }
+        }
+        if !(libm::fabsf(a[pivot][col]) > 1e-20) {
+            return false;
+        }
+        a.swap(col, pivot);
+        b.swap(col, pivot);
+        for row in col + 1..N {
+            let f = a[row][col] / a[col][col];
+            for k in col..N {
+                a[row][k] -= f * a[col][k];
+            }
+            b[row] -= f * b[col];
+        }
+    }
+    for col in (0..N).rev() {
+        let mut s = b[col];
+        for k in col + 1..N {
+            s -= a[col][k] * b[k];
+        }
+        b[col] = s / a[col][col];
+    }
+    b.iter().all(|x| x.is_finite())
+}
+
 /// Weighted first and second moments of a point set, accumulated relative to a reference point so that
 /// f32 sums stay precise far from the origin.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -165,8 +165,11 @@ pub struct Params {
     pub sq_max_error: f32,
     /// Levenberg–Marquardt iterations (paper: 12).
     pub lm_max_iters: u32,
-    /// Points sampled for the fit (paper: 100).
+    /// Points sampled for the fit (paper: 100; at most 128).
     pub lm_samples: u32,
+    /// Weight w of the size prior w · Σ a_k² added to the LM objective (an m2smap decision, see
+    /// `superquadric`): the unseen back of an object is otherwise unconstrained.
+    pub sq_scale_prior: f32,
 
     // --- 10. tracks ---------------------------------------------------------------------------------------
     /// Largest centre distance for association d_max, metres (paper: 0.35).
@@ -219,6 +222,7 @@ impl Default for Params {
             sq_max_error: 0.20,
             lm_max_iters: 12,
             lm_samples: 100,
+            sq_scale_prior: 1e-4,
             d_max: 0.35,
             alpha_c: 0.6,
             alpha_r: 0.35,
@@ -279,7 +283,8 @@ impl Params {
         check(pos(self.tau_s), "tau_s")?;
         check(pos(self.g_p), "g_p")?;
         check(pos(self.sq_max_error), "sq_max_error")?;
-        check(self.lm_samples >= 11, "lm_samples")?;
+        check(self.lm_samples >= 11 && self.lm_samples <= 128, "lm_samples")?;
+        check(self.sq_scale_prior.is_finite() && self.sq_scale_prior >= 0.0, "sq_scale_prior")?;
         check(pos(self.d_max), "d_max")?;
         check(unit(self.alpha_c), "alpha_c")?;
         check(unit(self.alpha_r), "alpha_r")?;

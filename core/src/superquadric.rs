@@ -1,0 +1,374 @@
+//! Stage 9: superquadric fitting of semantic objects (paper §V-B, equations 11–13; SPEC §2.9).
+//!
+//! The implicit function is F(x) = ((x/a1)^(2/ε2) + (y/a2)^(2/ε2))^(ε2/ε1) + (z/a3)^(2/ε1), each term computed
+//! as ((x/a)²)^(1/ε) so bases stay non-negative (squared ratios are capped at 10⁴ so far points stay finite).
+//! H = F^ε1, the residual is r = √H − 1 and the error E_sq = mean(r² · ‖p̃‖) with p̃ = Rᵀ(p − t) and ‖p̃‖
+//! floored at 1 mm. The 11 parameters are (a1, a2, a3, ε1, ε2, t, r) with R = R0 · exp([r]×): R0 is the
+//! initial frame, so the rotation update starts at zero.
+//!
+//! **Initialisation.** The object's PCA frame (e0, e1, e2) gives three right-handed candidate frames, one per
+//! choice of the SQ's z axis (cyclic permutations); in each, the 5th and 95th percentiles of the sampled points
+//! give the initial centre and half-axes, with ε1 = ε2 = 0.5. **Levenberg–Marquardt** (equation 13) on
+//! `lm_samples` points, at most `lm_max_iters` iterations: forward-difference Jacobian accumulated point by point
+//! into JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹), λ ÷ 3 on success and × 10 on failure,
+//! parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale ≥ 0.005 m) after each step. The candidate
+//! with the lowest objective wins.
+//!
+//! **Size prior.** Only the camera-facing half of an object is seen, so a superquadric that extends further
+//! away from the camera explains the points just as well. LM therefore minimises Σ e² + w · Σ a_k²
+//! (`sq_scale_prior`, w = 10⁻⁴ m⁻²: a few per cent of a typical data term), which picks the most compact
+//! shape that still passes through the observed surface; E_sq itself is reported and thresholded without it.
+//!
+//! **Validity.** Finite parameters, within bounds, E_sq < `sq_max_error`, every half-axis at most 1.5 × half
+//! the diagonal of the support's 3-D box and the centre inside that box grown by half its diagonal.
+
+use bytemuck::Zeroable;
+
+use crate::linalg::{self, Mat3, Vec3};
+use crate::params::Params;
+
+/// Smallest and largest shape exponent.
+pub const EPS_RANGE: (f32, f32) = (0.1, 1.9);
+/// Smallest half-axis, metres.
+pub const MIN_SCALE: f32 = 0.005;
+/// Most points one fit uses (`lm_samples` is clamped to this).
+pub const MAX_SAMPLES: usize = 128;
+/// Parameters of the fit.
+pub const SQ_PARAMS: usize = 11;
+
+/// A superquadric in the camera frame.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct Superquadric {
+    /// Half-axes a1, a2, a3 along the local x, y, z axes, metres.
+    pub scales: Vec3,
+    /// Shape exponents ε1 (z profile) and ε2 (x-y cross-section).
+    pub eps: [f32; 2],
+    /// Centre t, metres.
+    pub centre: Vec3,
+    /// Rotation R: its columns are the local x, y, z axes in the camera frame.
+    pub rotation: Mat3,
+}
+
+#[inline]
+fn term(x: f32, a: f32, eps: f32) -> f32 {
+    let q = (x / a) * (x / a);
+    libm::powf(q.min(1e4), 1.0 / eps)
+}
+
+/// Signed power sign(w)·|w|^e used by the parametric surface.
+#[inline]
+fn spow(w: f32, e: f32) -> f32 {
+    let p = libm::powf(libm::fabsf(w), e);
+    if w < 0.0 {
+        -p
+    } else {
+        p
+    }
+}
+
+impl Superquadric {
+    /// Local coordinates p̃ = Rᵀ(p − t).
+    #[inline]
+    pub fn local(&self, p: Vec3) -> Vec3 {
+        linalg::mat_t_vec(&self.rotation, linalg::sub(p, self.centre))
+    }
+
+    /// The inside-outside function F at local coordinates (1 on the surface, < 1 inside).
+    #[inline]
+    pub fn implicit(&self, l: Vec3) -> f32 {
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let xy = term(l[0], a1, e2) + term(l[1], a2, e2);
+        libm::powf(xy, e2 / e1) + term(l[2], a3, e1)
+    }
+
+    /// The weighted residual r·√‖p̃‖ of a camera-frame point (its square is the point's share of E_sq).
+    #[inline]
+    pub fn residual(&self, p: Vec3) -> f32 {
+        let l = self.local(p);
+        let h = libm::powf(self.implicit(l), self.eps[0]);
+        (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3))
+    }
+
+    /// Signed distance of a camera-frame point from the surface to first order, metres: (G − 1)/‖∇G‖ with
+    /// G = √H = F^(ε1/2) (positive outside). Falls back to the radial distance r·‖p̃‖ where ∇G vanishes.
+    pub fn distance(&self, p: Vec3) -> f32 {
+        let l = self.local(p);
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let (fx, fy, fz) = (term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1));
+        let s = fx + fy;
+        let sp = libm::powf(s, e2 / e1);
+        let f = sp + fz;
+        let g = libm::powf(f, 0.5 * e1);
+        // ∂f/∂x = (ε2/ε1)·S^(ε2/ε1 − 1)·(2/ε2)·fx/x = (2/ε1)·(S^(ε2/ε1)/S)·fx/x; ∂f/∂z = (2/ε1)·fz/z.
+        let ratio = |t: f32, x: f32| if libm::fabsf(x) > 1e-9 { t / x } else { 0.0 };
+        let kxy = if s > 1e-20 { (2.0 / e1) * sp / s } else { 0.0 };
+        let grad_f = [kxy * ratio(fx, l[0]), kxy * ratio(fy, l[1]), (2.0 / e1) * ratio(fz, l[2])];
+        // ∇G = (ε1/2)·(G/F)·∇F.
+        let k = if f > 1e-20 { 0.5 * e1 * g / f } else { 0.0 };
+        let grad_norm = k * linalg::norm(grad_f);
+        if grad_norm > 1e-6 && grad_norm.is_finite() {
+            (g - 1.0) / grad_norm
+        } else {
+            (g - 1.0) * linalg::norm(l).max(1e-3)
+        }
+    }
+
+    /// E_sq over `points`.
+    pub fn error(&self, points: &[Vec3]) -> f32 {
+        if points.is_empty() {
+            return f32::INFINITY;
+        }
+        points.iter().map(|&p| {
+            let r = self.residual(p);
+            r * r
+        }).sum::<f32>() / points.len() as f32
+    }
+
+    /// Surface point and outward unit normal at the parametric angles η ∈ [−π/2, π/2], ω ∈ [−π, π), camera frame.
+    pub fn surface(&self, eta: f32, omega: f32) -> (Vec3, Vec3) {
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let (ce, se, cw, sw) = (libm::cosf(eta), libm::sinf(eta), libm::cosf(omega), libm::sinf(omega));
+        let l = [a1 * spow(ce, e1) * spow(cw, e2), a2 * spow(ce, e1) * spow(sw, e2), a3 * spow(se, e1)];
+        // Normal of the parametric surface: (1/a · c^(2−ε) …), Barr's dual form.
+        let n = [
+            spow(ce, 2.0 - e1) * spow(cw, 2.0 - e2) / a1,
+            spow(ce, 2.0 - e1) * spow(sw, 2.0 - e2) / a2,
+            spow(se, 2.0 - e1) / a3,
+        ];
+        let n = linalg::normalize_or(linalg::mat_vec(&self.rotation, n), [0.0, 0.0, -1.0]);
+        (linalg::add(self.centre, linalg::mat_vec(&self.rotation, l)), n)
+    }
+
+    /// Whether every parameter is finite and within its bounds.
+    pub fn is_within_bounds(&self) -> bool {
+        let finite = self.scales.iter().chain(&self.eps).chain(&self.centre).all(|x| x.is_finite())
+            && self.rotation.iter().flatten().all(|x| x.is_finite());
+        finite
+            && self.scales.iter().all(|&a| a >= MIN_SCALE)
+            && self.eps.iter().all(|&e| (EPS_RANGE.0..=EPS_RANGE.1).contains(&e))
+    }
+}
+
+/// The outcome of a fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fit {
+    /// The best superquadric.
+    pub sq: Superquadric,
+    /// Its E_sq on the fit points.
+    pub error: f32,
+    /// LM iterations run for it.
+    pub iterations: u32,
+    /// Whether it passed the error threshold and the validity checks.
+    pub accepted: bool,
+}
+
+type Theta = [f32; SQ_PARAMS];
+
+fn model(theta: &Theta, r0: &Mat3) -> Superquadric {
+    Superquadric {
+        scales: [theta[0], theta[1], theta[2]],
+        eps: [theta[3], theta[4]],
+        centre: [theta[5], theta[6], theta[7]],
+        rotation: linalg::mat_mul(r0, &linalg::rotation_from_vector([theta[8], theta[9], theta[10]])),
+    }
+}
+
+fn clamp(theta: &mut Theta) {
+    for a in theta.iter_mut().take(3) {
+        *a = a.max(MIN_SCALE);
+    }
+    for e in theta.iter_mut().skip(3).take(2) {
+        *e = e.clamp(EPS_RANGE.0, EPS_RANGE.1);
+    }
+}
+
+/// The LM objective: Σ (radial distance)² over the points plus the size prior w · Σ a_k².
+fn cost(sq: &Superquadric, points: &[Vec3], w: f32) -> f32 {
+    let data: f32 = points.iter().map(|&p| {
+        let d = sq.distance(p);
+        d * d
+    }).sum();
+    let c = data + w * linalg::dot(sq.scales, sq.scales);
+    if c.is_finite() {
+        c
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// Percentile (0–1) of a small sample, by sorting a copy.
+fn percentile(values: &mut [f32], q: f32) -> f32 {
+    values.sort_unstable_by(f32::total_cmp);
+    let n = values.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let i = libm::roundf(q * (n - 1) as f32) as usize;
+    values.get(i.min(n - 1)).copied().unwrap_or(0.0)
+}
+
+/// Initial parameters in frame `r0` (columns = local axes) from the 5th/95th percentiles of the points.
+fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2]) -> Theta {
+    let mut theta = [0.0; SQ_PARAMS];
+    let mut buf = [0.0f32; MAX_SAMPLES];
+    let n = points.len().min(MAX_SAMPLES);
+    let mut centre_local = [0.0f32; 3];
+    for axis in 0..3 {
+        let dir = linalg::column(r0, axis);
+        for (b, &p) in buf.iter_mut().zip(points.iter().take(n)) {
+            *b = linalg::dot(linalg::sub(p, mean), dir);
+        }
+        let slice = buf.get_mut(..n).unwrap_or(&mut []);
+        let lo = percentile(slice, 0.05);
+        let hi = percentile(slice, 0.95);
+        if let (Some(t), Some(c)) = (theta.get_mut(axis), centre_local.get_mut(axis)) {
+            *t = (0.5 * (hi - lo)).max(MIN_SCALE);
+            *c = 0.5 * (hi + lo);
+        }
+    }
+    theta[3] = eps[0];
+    theta[4] = eps[1];
+    let centre = linalg::add(mean, linalg::mat_vec(r0, centre_local));
+    theta[5] = centre[0];
+    theta[6] = centre[1];
+    theta[7] = centre[2];
+    theta
+}
+
+/// Initial shape exponents of the candidates: box-like, cylinder-like (round cross-section), ellipsoid.
+const INITIAL_EPS: [[f32; 2]; 3] = [[0.3, 0.3], [0.3, 1.0], [1.0, 1.0]];
+
+/// Forward-difference steps per parameter (metres for scales and centre, radians for rotation).
+const STEPS: Theta = [1e-3, 1e-3, 1e-3, 2e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3];
+
+/// Levenberg–Marquardt from `theta`; returns the refined parameters, cost and iterations.
+fn levenberg_marquardt(points: &[Vec3], r0: &Mat3, mut theta: Theta, params: &Params) -> (Theta, f32, u32) {
+    let w = params.sq_scale_prior;
+    let mut current = cost(&model(&theta, r0), points, w);
+    let mut lambda = 1.0f32;
+    let mut iterations = 0;
+    for _ in 0..params.lm_max_iters {
+        iterations += 1;
+        // The base model and one perturbed model per parameter (a bound-hitting step goes backwards).
+        let base = model(&theta, r0);
+        let mut perturbed = [base; SQ_PARAMS];
+        let mut steps = STEPS;
+        for (j, (m, h)) in perturbed.iter_mut().zip(steps.iter_mut()).enumerate() {
+            let mut t = theta;
+            if let Some(x) = t.get_mut(j) {
+                *x += *h;
+            }
+            let before = t;
+            clamp(&mut t);
+            if t != before {
+                *h = -*h;
+                t = theta;
+                if let Some(x) = t.get_mut(j) {
+                    *x += *h;
+                }
+            }
+            *m = model(&t, r0);
+        }
+        let mut jtj = [[0.0f32; SQ_PARAMS]; SQ_PARAMS];
+        let mut jtr = [0.0f32; SQ_PARAMS];
+        for &p in points {
+            let r = base.distance(p);
+            let mut row = [0.0f32; SQ_PARAMS];
+            for ((d, m), h) in row.iter_mut().zip(&perturbed).zip(&steps) {
+                *d = (m.distance(p) - r) / h;
+            }
+            if !r.is_finite() || row.iter().any(|d| !d.is_finite()) {
+                continue;
+            }
+            for (a, (ja, ga)) in jtj.iter_mut().zip(row.iter().zip(jtr.iter_mut())) {
+                *ga += ja * r;
+                for (x, jb) in a.iter_mut().zip(&row) {
+                    *x += ja * jb;
+                }
+            }
+        }
+        // The size prior: residuals √w · a_k with derivative √w.
+        for k in 0..3 {
+            if let (Some(row), Some(g), Some(&a)) = (jtj.get_mut(k), jtr.get_mut(k), theta.get(k)) {
+                if let Some(d) = row.get_mut(k) {
+                    *d += w;
+                }
+                *g += w * a;
+            }
+        }
+        let mut improved = false;
+        for _attempt in 0..4 {
+            let mut a = jtj;
+            for (k, row) in a.iter_mut().enumerate() {
+                if let Some(d) = row.get_mut(k) {
+                    *d += lambda * (*d + 1e-9);
+                }
+            }
+            let mut delta = jtr.map(|g| -g);
+            if !linalg::solve(&mut a, &mut delta) {
+                lambda *= 10.0;
+                continue;
+            }
+            let mut candidate = theta;
+            for (t, d) in candidate.iter_mut().zip(delta) {
+                *t += d;
+            }
+            clamp(&mut candidate);
+            let c = cost(&model(&candidate, r0), points, w);
+            if c < current {
+                theta = candidate;
+                current = c;
+                lambda = (lambda / 3.0).max(1e-7);
+                improved = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (theta, current, iterations)
+}
+
+/// Fits a superquadric to `points` (camera frame) whose support has covariance eigen-frame `pca` (columns
+/// e0, e1, e2) and 3-D box `[bbox_min, bbox_max]`. `None` when there are too few points.
+pub fn fit(points: &[Vec3], pca: &Mat3, bbox_min: Vec3, bbox_max: Vec3, params: &Params) -> Option<Fit> {
+    if points.len() < SQ_PARAMS {
+        return None;
+    }
+    let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
+    let (e0, e1, e2) = (linalg::column(pca, 0), linalg::column(pca, 1), linalg::column(pca, 2));
+    let frames = [
+        linalg::from_columns(e0, e1, e2),
+        linalg::from_columns(e1, e2, e0),
+        linalg::from_columns(e2, e0, e1),
+    ];
+    let mut best: Option<(f32, Fit)> = None;
+    for (r0, eps) in frames.iter().flat_map(|f| INITIAL_EPS.iter().map(move |e| (f, *e))) {
+        let (theta, objective, iterations) = levenberg_marquardt(points, r0, initial(points, mean, r0, eps), params);
+        let sq = model(&theta, r0);
+        if best.is_none_or(|(b, _)| objective < b) {
+            best = Some((objective, Fit { sq, error: sq.error(points), iterations, accepted: false }));
+        }
+    }
+    let (_, mut best) = best?;
+    let half_diag = 0.5 * linalg::norm(linalg::sub(bbox_max, bbox_min));
+    let grow = [half_diag; 3];
+    let (lo, hi) = (linalg::sub(bbox_min, grow), linalg::add(bbox_max, grow));
+    let centred = (0..3).all(|k| {
+        let c = best.sq.centre.get(k).copied().unwrap_or(f32::NAN);
+        c >= lo.get(k).copied().unwrap_or(0.0) && c <= hi.get(k).copied().unwrap_or(0.0)
+    });
+    let sized = best.sq.scales.iter().all(|&a| a <= 1.5 * half_diag.max(MIN_SCALE));
+    best.accepted = best.error.is_finite()
+        && best.error < params.sq_max_error
+        && best.sq.is_within_bounds()
+        && centred
+        && sized;
+    Some(best)
+}

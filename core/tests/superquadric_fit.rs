@@ -1,0 +1,125 @@
+//! Superquadric fitting against known shapes: box-like, cylinder-like and ellipsoids, seen from the camera
+//! (only the camera-facing half), with depth noise.
+
+use m2smap_core::linalg::{self, Mat3, Vec3};
+use m2smap_core::superquadric::{fit, Superquadric};
+use m2smap_core::Params;
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f32 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.next()
+    }
+    fn normal(&mut self) -> f32 {
+        let (u1, u2) = (self.next().max(1e-7), self.next());
+        (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
+    }
+}
+
+/// Camera-facing surface points of `sq`: directions from the centre projected radially onto F = 1 (F is
+/// homogeneous), kept where the outward normal faces the camera at the origin; `noise` metres along the ray.
+pub fn visible_points(sq: &Superquadric, n: usize, noise: f32, rng: &mut Rng) -> Vec<Vec3> {
+    let mut out = Vec::new();
+    while out.len() < n {
+        let d = linalg::normalize_or([rng.normal(), rng.normal(), rng.normal()], [0.0, 0.0, 1.0]);
+        let f = sq.implicit(d);
+        let l = linalg::scale(d, f.powf(-sq.eps[0] / 2.0));
+        // Outward normal: numerical gradient of F at the local point.
+        let h = 1e-4;
+        let g = [0, 1, 2].map(|k| {
+            let mut a = l;
+            a[k] += h;
+            let mut b = l;
+            b[k] -= h;
+            sq.implicit(a) - sq.implicit(b)
+        });
+        let p = linalg::add(sq.centre, linalg::mat_vec(&sq.rotation, l));
+        let n_cam = linalg::mat_vec(&sq.rotation, g);
+        if linalg::dot(n_cam, p) >= 0.0 {
+            continue; // faces away from the camera
+        }
+        let ray = linalg::normalize_or(p, [0.0, 0.0, 1.0]);
+        out.push(linalg::add(p, linalg::scale(ray, noise * rng.normal())));
+    }
+    out
+}
+
+fn pca(points: &[Vec3]) -> Mat3 {
+    let mut m = linalg::Moments::about(points[0]);
+    for &p in points {
+        m.add(p, 1.0);
+    }
+    let e = linalg::sym_eigen(m.covariance());
+    linalg::from_columns(e.vectors[0], e.vectors[1], e.vectors[2])
+}
+
+fn random_sq(rng: &mut Rng, eps: [f32; 2]) -> Superquadric {
+    let r = [rng.range(-3.0, 3.0), rng.range(-3.0, 3.0), rng.range(-3.0, 3.0)];
+    Superquadric {
+        scales: [rng.range(0.08, 0.35), rng.range(0.08, 0.35), rng.range(0.08, 0.35)],
+        eps,
+        centre: [rng.range(-0.3, 0.3), rng.range(-0.2, 0.2), rng.range(1.3, 2.2)],
+        rotation: linalg::rotation_from_vector(r),
+    }
+}
+
+#[test]
+fn fits_known_shapes_from_their_visible_half() {
+    let iters: u32 = std::env::var("LM_ITERS").ok().and_then(|v| v.parse().ok()).unwrap_or(12);
+    let params = Params { lm_max_iters: iters, ..Params::default() };
+    let mut rng = Rng(0x9e3779b97f4a7c15);
+    let mut results = Vec::new();
+    for case in 0..60 {
+        let kind = case % 3;
+        let eps = match kind {
+            0 => [rng.range(0.1, 0.3), rng.range(0.1, 0.3)], // box-like
+            1 => [rng.range(0.1, 0.3), 1.0],                 // cylinder-like
+            _ => [1.0, 1.0],                                 // ellipsoid
+        };
+        let truth = random_sq(&mut rng, eps);
+        let all = visible_points(&truth, 1500, 0.002, &mut rng);
+        let frame = pca(&all);
+        let (lo, hi) = all.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), &p| {
+            (linalg::min_elem(lo, p), linalg::max_elem(hi, p))
+        });
+        let sample: Vec<Vec3> = all.iter().step_by(all.len() / params.lm_samples as usize).copied().take(100).collect();
+        let f = fit(&sample, &frame, lo, hi, &params).expect("enough points");
+        let centre_err = linalg::norm(linalg::sub(f.sq.centre, truth.centre));
+        let mut a = f.sq.scales;
+        let mut b = truth.scales;
+        a.sort_by(f32::total_cmp);
+        b.sort_by(f32::total_cmp);
+        let axis_err = (0..3).map(|k| (a[k] - b[k]).abs() / b[k]).fold(0.0f32, f32::max);
+        let ok = centre_err <= 0.01 && axis_err <= 0.10;
+        if !ok {
+            let mut faces = [0usize; 6];
+            for &p in &all {
+                let l = truth.local(p);
+                let k = (0..3).max_by(|&i, &j| (l[i].abs() / truth.scales[i]).total_cmp(&(l[j].abs() / truth.scales[j]))).unwrap();
+                faces[2 * k + (l[k] > 0.0) as usize] += 1;
+            }
+            let fe = f.sq.error(&sample);
+            let te = truth.error(&sample);
+            let w = params.sq_scale_prior;
+            let obj = |sq: &Superquadric| sample.iter().map(|&p| sq.distance(p).powi(2)).sum::<f32>() + w * linalg::dot(sq.scales, sq.scales);
+            println!("   faces {faces:?} fit E {fe:.3e} truth E {te:.3e} objective fit {:.3e} truth {:.3e}", obj(&f.sq), obj(&truth));
+        }
+        println!("case {case} kind {kind}: centre {centre_err:.4} m, axes {axis_err:.3}, E {:.2e} fit {:?} {:?} truth {:?} {:?}, accepted {} {}", f.error, f.sq.scales, f.sq.eps, truth.scales, truth.eps, f.accepted, if ok { "" } else { "MISS" });
+        results.push((kind, ok, f.accepted));
+    }
+    for kind in 0..3 {
+        let of_kind: Vec<_> = results.iter().filter(|r| r.0 == kind).collect();
+        let ok = of_kind.iter().filter(|r| r.1).count() as f64 / of_kind.len() as f64;
+        let accepted = of_kind.iter().filter(|r| r.2).count() as f64 / of_kind.len() as f64;
+        println!("kind {kind}: {ok:.2} within tolerance, {accepted:.2} accepted");
+    }
+    let ok = results.iter().filter(|r| r.1).count() as f64 / results.len() as f64;
+    assert!(ok >= 0.9, "only {ok:.2} of random cases within 1 cm / 10 %");
+    assert!(results.iter().filter(|r| r.2).count() as f64 >= 0.9 * results.len() as f64, "fits must be accepted");
+}
