@@ -91,31 +91,6 @@ impl Superquadric {
         (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3))
     }
 
-    /// Signed distance of a camera-frame point from the surface to first order, metres: (G − 1)/‖∇G‖ with
-    /// G = √H = F^(ε1/2) (positive outside). Falls back to the radial distance r·‖p̃‖ where ∇G vanishes.
-    pub fn distance(&self, p: Vec3) -> f32 {
-        let l = self.local(p);
-        let [a1, a2, a3] = self.scales;
-        let [e1, e2] = self.eps;
-        let (fx, fy, fz) = (term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1));
-        let s = fx + fy;
-        let sp = libm::powf(s, e2 / e1);
-        let f = sp + fz;
-        let g = libm::powf(f, 0.5 * e1);
-        // ∂f/∂x = (ε2/ε1)·S^(ε2/ε1 − 1)·(2/ε2)·fx/x = (2/ε1)·(S^(ε2/ε1)/S)·fx/x; ∂f/∂z = (2/ε1)·fz/z.
-        let ratio = |t: f32, x: f32| if libm::fabsf(x) > 1e-9 { t / x } else { 0.0 };
-        let kxy = if s > 1e-20 { (2.0 / e1) * sp / s } else { 0.0 };
-        let grad_f = [kxy * ratio(fx, l[0]), kxy * ratio(fy, l[1]), (2.0 / e1) * ratio(fz, l[2])];
-        // ∇G = (ε1/2)·(G/F)·∇F.
-        let k = if f > 1e-20 { 0.5 * e1 * g / f } else { 0.0 };
-        let grad_norm = k * linalg::norm(grad_f);
-        if grad_norm > 1e-6 && grad_norm.is_finite() {
-            (g - 1.0) / grad_norm
-        } else {
-            (g - 1.0) * linalg::norm(l).max(1e-3)
-        }
-    }
-
     /// E_sq over `points`.
     pub fn error(&self, points: &[Vec3]) -> f32 {
         if points.is_empty() {
@@ -125,6 +100,38 @@ impl Superquadric {
             let r = self.residual(p);
             r * r
         }).sum::<f32>() / points.len() as f32
+    }
+
+    /// Signed distance of a camera-frame point from the surface to first order, metres: (G − 1)/‖∇G‖ with
+    /// G = √H = F^(ε1/2) (positive outside). Falls back to the radial distance r·‖p̃‖ where ∇G vanishes.
+    pub fn distance(&self, p: Vec3) -> f32 {
+        self.distance_at(self.local(p)).0
+    }
+
+    /// [`Superquadric::distance`] at local coordinates `l`, with the unit normal ∇G/‖∇G‖ (local frame; the
+    /// direction from the centre where ∇G vanishes).
+    fn distance_at(&self, l: Vec3) -> (f32, Vec3) {
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let (fx, fy, fz) = (term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1));
+        let s = fx + fy;
+        let sp = libm::powf(s, e2 / e1);
+        let f = sp + fz;
+        let g = libm::powf(f, 0.5 * e1);
+        // ∂F/∂x = (ε2/ε1)·S^(ε2/ε1 − 1)·(2/ε2)·fx/x = (2/ε1)·(S^(ε2/ε1)/S)·fx/x; ∂F/∂z = (2/ε1)·fz/z.
+        let ratio = |t: f32, x: f32| if libm::fabsf(x) > 1e-9 { t / x } else { 0.0 };
+        let kxy = if s > 1e-20 { (2.0 / e1) * sp / s } else { 0.0 };
+        let grad_f = [kxy * ratio(fx, l[0]), kxy * ratio(fy, l[1]), (2.0 / e1) * ratio(fz, l[2])];
+        // ∇G = (ε1/2)·(G/F)·∇F.
+        let k = if f > 1e-20 { 0.5 * e1 * g / f } else { 0.0 };
+        let norm_f = linalg::norm(grad_f);
+        let grad_norm = k * norm_f;
+        let radial = linalg::normalize_or(l, [0.0, 0.0, 1.0]);
+        if grad_norm > 1e-6 && grad_norm.is_finite() {
+            ((g - 1.0) / grad_norm, linalg::scale(grad_f, 1.0 / norm_f))
+        } else {
+            ((g - 1.0) * linalg::norm(l).max(1e-3), radial)
+        }
     }
 
     /// Surface point and outward unit normal at the parametric angles η ∈ [−π/2, π/2], ω ∈ [−π, π), camera frame.
@@ -212,7 +219,7 @@ fn percentile(values: &mut [f32], q: f32) -> f32 {
 }
 
 /// Initial parameters in frame `r0` (columns = local axes) from the 5th/95th percentiles of the points.
-fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2]) -> Theta {
+fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2], deepen: bool) -> Theta {
     let mut theta = [0.0; SQ_PARAMS];
     let mut buf = [0.0f32; MAX_SAMPLES];
     let n = points.len().min(MAX_SAMPLES);
@@ -232,6 +239,20 @@ fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2]) -> Theta {
     }
     theta[3] = eps[0];
     theta[4] = eps[1];
+    // Only the camera-facing half is seen: along the local axis closest to the line of sight the percentile
+    // extent covers about half the object. Assume it is at least as deep as the mean of the other two half-axes
+    // and move the centre away from the camera by the difference.
+    let view = linalg::normalize_or(mean, [0.0, 0.0, 1.0]);
+    let along = |k: usize| libm::fabsf(linalg::dot(linalg::column(r0, k), view));
+    let k = if along(0) >= along(1) && along(0) >= along(2) { 0 } else if along(1) >= along(2) { 1 } else { 2 };
+    let others = (theta[0] + theta[1] + theta[2] - theta.get(k).copied().unwrap_or(0.0)) * 0.5;
+    if let (Some(a), Some(c)) = (theta.get_mut(k), centre_local.get_mut(k)) {
+        if deepen && others > *a {
+            let away = if linalg::dot(linalg::column(r0, k), view) >= 0.0 { 1.0 } else { -1.0 };
+            *c += away * (others - *a);
+            *a = others;
+        }
+    }
     let centre = linalg::add(mean, linalg::mat_vec(r0, centre_local));
     theta[5] = centre[0];
     theta[6] = centre[1];
@@ -242,22 +263,51 @@ fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2]) -> Theta {
 /// Initial shape exponents of the candidates: box-like, cylinder-like (round cross-section), ellipsoid.
 const INITIAL_EPS: [[f32; 2]; 3] = [[0.3, 0.3], [0.3, 1.0], [1.0, 1.0]];
 
+/// LM iterations every initial guess gets before the best are chosen.
+const SCREEN_ITERS: u32 = 12;
+/// Guesses that continue to the full iteration budget.
+const LM_CANDIDATES: usize = 1;
+
 /// Forward-difference steps per parameter (metres for scales and centre, radians for rotation).
 const STEPS: Theta = [1e-3, 1e-3, 1e-3, 2e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3];
 
-/// Levenberg–Marquardt from `theta`; returns the refined parameters, cost and iterations.
-fn levenberg_marquardt(points: &[Vec3], r0: &Mat3, mut theta: Theta, params: &Params) -> (Theta, f32, u32) {
+/// The state of one LM run.
+#[derive(Debug, Clone, Copy)]
+struct Run {
+    /// Current base rotation R0; the rotation parameters are folded into it every iteration.
+    base: Mat3,
+    theta: Theta,
+    cost: f32,
+    lambda: f32,
+    iterations: u32,
+    converged: bool,
+}
+
+/// Up to `iterations` more Levenberg–Marquardt iterations of `run`; stops early when a step improves the
+/// objective by less than 10⁻⁴ of itself or no damping finds a better point.
+fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: &Params) {
     let w = params.sq_scale_prior;
-    let mut current = cost(&model(&theta, r0), points, w);
-    let mut lambda = 1.0f32;
-    let mut iterations = 0;
-    for _ in 0..params.lm_max_iters {
-        iterations += 1;
-        // The base model and one perturbed model per parameter (a bound-hitting step goes backwards).
+    let mut theta = run.theta;
+    let mut current = run.cost;
+    let mut lambda = run.lambda;
+    for _ in 0..iterations {
+        if run.converged {
+            break;
+        }
+        run.iterations += 1;
+        // Fold the rotation update into the base so the rotation Jacobian is taken at r = 0.
+        run.base = linalg::mat_mul(&run.base, &linalg::rotation_from_vector([theta[8], theta[9], theta[10]]));
+        theta[8] = 0.0;
+        theta[9] = 0.0;
+        theta[10] = 0.0;
+        let r0 = &run.base;
+        // Jacobian: numerical for the 5 shape parameters (a bound-hitting step goes backwards); analytic for
+        // the pose, with the distance's gradient taken as the unit normal n: ∂d/∂t = −R·n, ∂d/∂r = n × p̃.
         let base = model(&theta, r0);
-        let mut perturbed = [base; SQ_PARAMS];
-        let mut steps = STEPS;
+        let mut perturbed = [base; 5];
+        let mut steps = [0.0f32; 5];
         for (j, (m, h)) in perturbed.iter_mut().zip(steps.iter_mut()).enumerate() {
+            *h = STEPS.get(j).copied().unwrap_or(1e-3);
             let mut t = theta;
             if let Some(x) = t.get_mut(j) {
                 *x += *h;
@@ -276,11 +326,20 @@ fn levenberg_marquardt(points: &[Vec3], r0: &Mat3, mut theta: Theta, params: &Pa
         let mut jtj = [[0.0f32; SQ_PARAMS]; SQ_PARAMS];
         let mut jtr = [0.0f32; SQ_PARAMS];
         for &p in points {
-            let r = base.distance(p);
+            let l = base.local(p);
+            let (r, n) = base.distance_at(l);
             let mut row = [0.0f32; SQ_PARAMS];
             for ((d, m), h) in row.iter_mut().zip(&perturbed).zip(&steps) {
-                *d = (m.distance(p) - r) / h;
+                *d = (m.distance_at(l).0 - r) / h;
             }
+            let dt = linalg::scale(linalg::mat_vec(&base.rotation, n), -1.0);
+            let dr = linalg::cross(n, l);
+            row[5] = dt[0];
+            row[6] = dt[1];
+            row[7] = dt[2];
+            row[8] = dr[0];
+            row[9] = dr[1];
+            row[10] = dr[2];
             if !r.is_finite() || row.iter().any(|d| !d.is_finite()) {
                 continue;
             }
@@ -318,8 +377,11 @@ fn levenberg_marquardt(points: &[Vec3], r0: &Mat3, mut theta: Theta, params: &Pa
                 *t += d;
             }
             clamp(&mut candidate);
-            let c = cost(&model(&candidate, r0), points, w);
+            let c = cost(&model(&candidate, &run.base), points, w);
             if c < current {
+                if current - c < 1e-4 * current {
+                    run.converged = true;
+                }
                 theta = candidate;
                 current = c;
                 lambda = (lambda / 3.0).max(1e-7);
@@ -329,10 +391,12 @@ fn levenberg_marquardt(points: &[Vec3], r0: &Mat3, mut theta: Theta, params: &Pa
             lambda *= 10.0;
         }
         if !improved {
-            break;
+            run.converged = true;
         }
     }
-    (theta, current, iterations)
+    run.theta = theta;
+    run.cost = current;
+    run.lambda = lambda;
 }
 
 /// Fits a superquadric to `points` (camera frame) whose support has covariance eigen-frame `pca` (columns
@@ -348,12 +412,31 @@ pub fn fit(points: &[Vec3], pca: &Mat3, bbox_min: Vec3, bbox_max: Vec3, params: 
         linalg::from_columns(e1, e2, e0),
         linalg::from_columns(e2, e0, e1),
     ];
+    // Successive halving over the 18 guesses (3 frames × 3 ε × plain/deepened): every guess gets
+    // `SCREEN_ITERS` LM iterations, the `LM_CANDIDATES` best continue up to `lm_max_iters` in all.
+    let mut runs = [Run {
+        base: linalg::IDENTITY,
+        theta: [0.0; SQ_PARAMS],
+        cost: f32::INFINITY,
+        lambda: 1.0,
+        iterations: 0,
+        converged: false,
+    }; 18];
+    let all = frames.iter().flat_map(|f| INITIAL_EPS.iter().flat_map(move |e| [(f, *e, false), (f, *e, true)]));
+    for (run, (r0, eps, deepen)) in runs.iter_mut().zip(all) {
+        run.base = *r0;
+        run.theta = initial(points, mean, r0, eps, deepen);
+        run.cost = cost(&model(&run.theta, r0), points, params.sq_scale_prior);
+        levenberg_marquardt(points, run, SCREEN_ITERS.min(params.lm_max_iters), params);
+    }
+    runs.sort_unstable_by(|a, b| a.cost.total_cmp(&b.cost));
     let mut best: Option<(f32, Fit)> = None;
-    for (r0, eps) in frames.iter().flat_map(|f| INITIAL_EPS.iter().map(move |e| (f, *e))) {
-        let (theta, objective, iterations) = levenberg_marquardt(points, r0, initial(points, mean, r0, eps), params);
-        let sq = model(&theta, r0);
-        if best.is_none_or(|(b, _)| objective < b) {
-            best = Some((objective, Fit { sq, error: sq.error(points), iterations, accepted: false }));
+    for run in runs.iter_mut().take(LM_CANDIDATES) {
+        let more = params.lm_max_iters.saturating_sub(run.iterations);
+        levenberg_marquardt(points, run, more, params);
+        let sq = model(&run.theta, &run.base);
+        if best.is_none_or(|(b, _)| run.cost < b) {
+            best = Some((run.cost, Fit { sq, error: sq.error(points), iterations: run.iterations, accepted: false }));
         }
     }
     let (_, mut best) = best?;

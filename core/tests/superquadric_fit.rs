@@ -24,7 +24,7 @@ impl Rng {
 
 /// Camera-facing surface points of `sq`: directions from the centre projected radially onto F = 1 (F is
 /// homogeneous), kept where the outward normal faces the camera at the origin; `noise` metres along the ray.
-pub fn visible_points(sq: &Superquadric, n: usize, noise: f32, rng: &mut Rng) -> Vec<Vec3> {
+fn visible_points(sq: &Superquadric, n: usize, noise: f32, rng: &mut Rng) -> Vec<Vec3> {
     let mut out = Vec::new();
     while out.len() < n {
         let d = linalg::normalize_or([rng.normal(), rng.normal(), rng.normal()], [0.0, 0.0, 1.0]);
@@ -71,11 +71,10 @@ fn random_sq(rng: &mut Rng, eps: [f32; 2]) -> Superquadric {
 
 #[test]
 fn fits_known_shapes_from_their_visible_half() {
-    let iters: u32 = std::env::var("LM_ITERS").ok().and_then(|v| v.parse().ok()).unwrap_or(12);
-    let params = Params { lm_max_iters: iters, ..Params::default() };
+    let params = Params::default();
     let mut rng = Rng(0x9e3779b97f4a7c15);
     let mut results = Vec::new();
-    for case in 0..60 {
+    for case in 0..90 {
         let kind = case % 3;
         let eps = match kind {
             0 => [rng.range(0.1, 0.3), rng.range(0.1, 0.3)], // box-like
@@ -98,19 +97,8 @@ fn fits_known_shapes_from_their_visible_half() {
         let axis_err = (0..3).map(|k| (a[k] - b[k]).abs() / b[k]).fold(0.0f32, f32::max);
         let ok = centre_err <= 0.01 && axis_err <= 0.10;
         if !ok {
-            let mut faces = [0usize; 6];
-            for &p in &all {
-                let l = truth.local(p);
-                let k = (0..3).max_by(|&i, &j| (l[i].abs() / truth.scales[i]).total_cmp(&(l[j].abs() / truth.scales[j]))).unwrap();
-                faces[2 * k + (l[k] > 0.0) as usize] += 1;
-            }
-            let fe = f.sq.error(&sample);
-            let te = truth.error(&sample);
-            let w = params.sq_scale_prior;
-            let obj = |sq: &Superquadric| sample.iter().map(|&p| sq.distance(p).powi(2)).sum::<f32>() + w * linalg::dot(sq.scales, sq.scales);
-            println!("   faces {faces:?} fit E {fe:.3e} truth E {te:.3e} objective fit {:.3e} truth {:.3e}", obj(&f.sq), obj(&truth));
+            println!("case {case} kind {kind}: centre {centre_err:.4} m, axes {axis_err:.3}, E {:.2e}", f.error);
         }
-        println!("case {case} kind {kind}: centre {centre_err:.4} m, axes {axis_err:.3}, E {:.2e} fit {:?} {:?} truth {:?} {:?}, accepted {} {}", f.error, f.sq.scales, f.sq.eps, truth.scales, truth.eps, f.accepted, if ok { "" } else { "MISS" });
         results.push((kind, ok, f.accepted));
     }
     for kind in 0..3 {
