@@ -119,8 +119,8 @@ fn bounded_planes_cover_the_visible_floor_and_no_unobserved_cell() {
         mapper.for_each_labelled_point(&checked, |p, v| {
             let g = v.filter(|v| is_assigned(v.gaussian)).and_then(|v| mapper.gaussians().get(v.gaussian as usize));
             if let Some(g) = g.filter(|g| g.role == ROLE_PLANE) {
-                if let Some(c) = planes[g.plane as usize].cell_of(p.xyz, g_p) {
-                    cells_from_points[g.plane as usize].insert(c);
+                if let Some(c) = planes[g.owner as usize].cell_of(p.xyz, g_p) {
+                    cells_from_points[g.owner as usize].insert(c);
                 }
             }
             if frame.surface[p.v as usize * w + p.u as usize] == 1 {

@@ -15,7 +15,6 @@ use crate::gmm::{self, Gaussian};
 use crate::pool::Bounded;
 use crate::masks::{MaskPixels, MaskSet};
 use crate::params::Params;
-use crate::points;
 use crate::supervoxel::{self, Voxel};
 
 /// Largest number of instances per frame that annotation considers (the instance index is stored in 8 bits);
@@ -133,11 +132,9 @@ pub fn count_hits(
         ..Default::default()
     };
     let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
-    let r = params.voxel_resolution;
     let w = frame.width as usize;
-    points::for_each_point(frame, params, |p| {
-        let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
-        let Some(v) = supervoxel::find_voxel(voxels, slots, key).and_then(|i| voxels.get(i)) else { return };
+    supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+        let Some((_, v)) = v else { return };
         let g = v.gaussian as usize;
         let Some(gauss) = gaussians.get(g) else { return };
         let mut add = |k: usize| {
@@ -246,7 +243,7 @@ pub fn cut_along_masks(
     let mut cuts = [Cut::default(); MAX_MASK_SPLITS];
     let mut n_cuts = 0usize;
     for (g, gauss) in gaussians.as_mut_slice().iter_mut().enumerate() {
-        gauss.plane = 0;
+        gauss.owner = 0;
         let Some((k, inside)) = best_match(masks, params, |k| hits_of(hits, g, k)) else { continue };
         let share = libm::ceilf(params.mask_split_min_share * gauss.count as f32) as u32;
         let least = params.gmm_min_points.max(share);
@@ -254,7 +251,7 @@ pub fn cut_along_masks(
             if let Some(c) = cuts.get_mut(n_cuts) {
                 *c = Cut { gaussian: g as u16, instance: k as u8, inside_points: 0, new_gaussian: None };
                 n_cuts += 1;
-                gauss.plane = n_cuts as u8; // marks the Gaussian as cut number n_cuts (1-based) during this stage
+                gauss.owner = n_cuts as u8; // marks the Gaussian as cut number n_cuts (1-based) during this stage
             }
         }
     }
@@ -265,14 +262,11 @@ pub fn cut_along_masks(
     let n = voxels.len().min(scratch.len());
     let Some(inside) = scratch.get_mut(..n) else { return 0 };
     inside.fill(0);
-    let r = params.voxel_resolution;
     {
         let gauss = gaussians.as_slice();
-        points::for_each_point(frame, params, |p| {
-            let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
-            let Some(vi) = supervoxel::find_voxel(voxels, slots, key) else { return };
-            let Some(g) = voxels.get(vi).and_then(|v| gauss.get(v.gaussian as usize)) else { return };
-            let Some(cut) = (g.plane as usize).checked_sub(1).and_then(|c| cuts.get(c)) else { return };
+        supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+            let Some((vi, g)) = v.and_then(|(vi, v)| gauss.get(v.gaussian as usize).map(|g| (vi, g))) else { return };
+            let Some(cut) = (g.owner as usize).checked_sub(1).and_then(|c| cuts.get(c)) else { return };
             if masks.contains(cut.instance as usize, p.u, p.v) {
                 if let Some(c) = inside.get_mut(vi) {
                     *c = c.saturating_add(1);
@@ -283,7 +277,7 @@ pub fn cut_along_masks(
     // Points that would move (voxels mostly inside), per cut; a cut that leaves either side too small is dropped.
     for (v, &c) in voxels.iter().zip(inside.iter()) {
         let Some(g) = gaussians.get(v.gaussian as usize) else { continue };
-        if let Some(cut) = (g.plane as usize).checked_sub(1).and_then(|i| cuts.get_mut(i)) {
+        if let Some(cut) = (g.owner as usize).checked_sub(1).and_then(|i| cuts.get_mut(i)) {
             if 2 * c as u32 > v.count as u32 {
                 cut.inside_points += v.count as u32;
             }
@@ -303,7 +297,7 @@ pub fn cut_along_masks(
     }
     for (v, &c) in voxels.iter_mut().zip(inside.iter()) {
         let Some(g) = gaussians.get(v.gaussian as usize) else { continue };
-        let Some(cut) = (g.plane as usize).checked_sub(1).and_then(|i| cuts.get(i)) else { continue };
+        let Some(cut) = (g.owner as usize).checked_sub(1).and_then(|i| cuts.get(i)) else { continue };
         if let Some(new) = cut.new_gaussian {
             if 2 * c as u32 > v.count as u32 {
                 v.gaussian = new;
@@ -311,7 +305,7 @@ pub fn cut_along_masks(
         }
     }
     for g in gaussians.as_mut_slice() {
-        g.plane = 0;
+        g.owner = 0;
     }
     if made > 0 {
         gmm::recompute_statistics(frame, voxels, slots, scratch, gaussians.as_mut_slice(), params);

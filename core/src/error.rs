@@ -32,6 +32,8 @@ pub enum FrameError {
     BadIntrinsics,
     /// The depth scale (raw units per metre) is zero, negative or not finite.
     BadDepthScale,
+    /// The camera pose is not finite or its rotation is not a proper orthonormal matrix.
+    BadPose,
     /// No depth sample lies inside `[depth_min, depth_max]`.
     NoValidDepth,
     /// Every valid depth sample has the same raw value: a stuck or saturated sensor, not a scene.
@@ -101,6 +103,7 @@ impl fmt::Display for FrameError {
             }
             FrameError::BadIntrinsics => write!(f, "camera intrinsics are zero, negative or not finite"),
             FrameError::BadDepthScale => write!(f, "depth scale is zero, negative or not finite"),
+            FrameError::BadPose => write!(f, "camera pose is not finite or not a proper rotation"),
             FrameError::NoValidDepth => write!(f, "no depth sample lies in the configured depth range"),
             FrameError::ConstantDepth { raw } => {
                 write!(f, "every valid depth sample has the raw value {raw} (stuck sensor?)")

@@ -1,7 +1,46 @@
 //! The camera model and the borrowed RGB-D frame view.
 
 use crate::error::FrameError;
+use crate::linalg::{self, Mat3, Vec3};
 use crate::params::Params;
+
+/// A rigid camera-to-world transform: p_world = R · p_camera + t.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Rotation R (row-major), orthonormal with determinant +1.
+    pub rotation: Mat3,
+    /// Translation t, metres.
+    pub translation: Vec3,
+}
+
+impl Pose {
+    /// A camera-frame point in the world frame.
+    pub fn to_world(&self, p: Vec3) -> Vec3 {
+        linalg::add(linalg::mat_vec(&self.rotation, p), self.translation)
+    }
+
+    /// A world-frame point in the camera frame.
+    pub fn to_camera(&self, p: Vec3) -> Vec3 {
+        linalg::mat_t_vec(&self.rotation, linalg::sub(p, self.translation))
+    }
+
+    /// Whether every value is finite and the rotation is orthonormal with determinant +1 (to 10⁻³).
+    pub fn is_valid(&self) -> bool {
+        let r = &self.rotation;
+        if !(r.iter().flatten().chain(&self.translation).all(|x| x.is_finite())) {
+            return false;
+        }
+        let rtr = linalg::mat_mul(&linalg::transpose(r), r);
+        let identity = (0..3).all(|i| {
+            (0..3).all(|j| {
+                let e = rtr.get(i).and_then(|row| row.get(j)).copied().unwrap_or(f32::NAN);
+                libm::fabsf(e - if i == j { 1.0 } else { 0.0 }) < 1e-3
+            })
+        });
+        let det = linalg::dot(linalg::cross(r[0], r[1]), r[2]);
+        identity && libm::fabsf(det - 1.0) < 1e-3
+    }
+}
 
 /// Pinhole intrinsics K, pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -55,6 +94,8 @@ pub struct Frame<'a> {
     pub colour: &'a [u8],
     /// Camera intrinsics of the depth image.
     pub intrinsics: Intrinsics,
+    /// Camera-to-world pose, when known: superquadric tracks then live in the world frame.
+    pub pose: Option<Pose>,
 }
 
 impl<'a> Frame<'a> {
@@ -83,6 +124,9 @@ impl<'a> Frame<'a> {
         }
         if !(self.depth_scale.is_finite() && self.depth_scale > 0.0) {
             return Err(FrameError::BadDepthScale);
+        }
+        if self.pose.is_some_and(|p| !p.is_valid()) {
+            return Err(FrameError::BadPose);
         }
         let (lo, hi) = self.raw_range(params);
         let mut first: Option<u16> = None;

@@ -29,7 +29,6 @@ use bytemuck::Zeroable;
 use crate::frame::Frame;
 use crate::linalg::{self, Moments, Sym3, Vec3};
 use crate::params::Params;
-use crate::points;
 use crate::pool::Bounded;
 use crate::supervoxel::{self, is_assigned, Supervoxel, Voxel, DROPPED};
 
@@ -69,8 +68,9 @@ pub struct Gaussian {
     pub class: u16,
     /// Role after flat-plane separation: [`ROLE_NONE`], [`ROLE_PLANE`], [`ROLE_OBJECT`] or [`ROLE_RESIDUAL`].
     pub role: u8,
-    /// Plane index when `role == ROLE_PLANE`.
-    pub plane: u8,
+    /// Index of the plane (`ROLE_PLANE`) or object (`ROLE_OBJECT`) it belongs to; a stage-local mark before
+    /// separation.
+    pub owner: u8,
 }
 
 /// Role before separation has run.
@@ -195,11 +195,8 @@ pub fn voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel], r: f3
 /// Second pass over the points: the exact covariance (denominator N − 1), eigen frame, 3-D support box and
 /// projected support box of every Gaussian, given its mean from [`voxel_statistics`].
 pub fn point_statistics(frame: &Frame<'_>, voxels: &[Voxel], slots: &[u16], gaussians: &mut [Gaussian], params: &Params) {
-    let r = params.voxel_resolution;
-    points::for_each_point(frame, params, |p| {
-        let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
-        let Some(v) = supervoxel::find_voxel(voxels, slots, key).and_then(|i| voxels.get(i)) else { return };
-        let Some(g) = gaussians.get_mut(v.gaussian as usize) else { return };
+    supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+        let Some(g) = v.and_then(|(_, v)| gaussians.get_mut(v.gaussian as usize)) else { return };
         let d = linalg::sub(p.xyz, g.mean);
         let c = &mut g.covariance;
         c[0] += d[0] * d[0];

@@ -48,9 +48,10 @@ pub mod pool;
 pub mod profile;
 pub mod superquadric;
 pub mod supervoxel;
+pub mod track;
 
 pub use error::{FrameError, MaskError, ParamError};
-pub use frame::{Frame, Intrinsics};
+pub use frame::{Frame, Intrinsics, Pose};
 pub use gmm::Gaussian;
 pub use mapper::{FrameReport, Mapper};
 pub use masks::{Instance, MaskPixels, MaskSet};

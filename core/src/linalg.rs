@@ -209,7 +209,7 @@ pub fn solve<const N: usize>(a: &mut [[f32; N]; N], b: &mut [f32; N]) -> bool {
                 pivot = row;
             }
         }
-        if !(libm::fabsf(a[pivot][col]) > 1e-20) {
+        if libm::fabsf(a[pivot][col]).is_nan() || libm::fabsf(a[pivot][col]) <= 1e-20 {
             return false;
         }
         a.swap(col, pivot);

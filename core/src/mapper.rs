@@ -4,17 +4,23 @@ use crate::annotate::{self, MaskHit};
 use crate::error::FrameError;
 use crate::fuse;
 use crate::gmm::{ROLE_OBJECT, ROLE_PLANE, ROLE_RESIDUAL};
-use crate::objects::{self, Object};
+use crate::linalg::{self, Moments, Vec3};
+use crate::objects::{self, Object, SQ_ACCEPTED, SQ_NONE, SQ_REJECTED};
+use crate::superquadric::{self, Superquadric};
+use crate::track::{Track, Tracker};
 use crate::plane::{self, Plane};
 use crate::error::ParamError;
 use crate::frame::Frame;
 use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
 use crate::masks::MaskSet;
 use crate::params::Params;
-use crate::points::{self, Point};
+use crate::points::Point;
 use crate::pool::{Bounded, PoolId, PoolUsage};
 use crate::profile::Profile;
 use crate::supervoxel::{self, SeedCell, Supervoxel, SupervoxelPools, Voxel};
+
+/// Most objects whose fit points are gathered in one pass over the frame.
+const MAX_OBJECTS_PER_PASS: usize = 64;
 
 /// A frame (and its masks) that passed validation for this mapper's parameters and profile.
 #[derive(Debug, Clone, Copy)]
@@ -76,6 +82,20 @@ pub struct FrameReport {
     pub residual_gaussians: u32,
     /// Instances ignored beyond the annotation limit.
     pub ignored_instances: u32,
+    /// Objects represented by an accepted superquadric.
+    pub sqs: u32,
+    /// Gaussian primitives of the map: residual Gaussians and those of objects without an accepted superquadric.
+    pub gmms: u32,
+    /// Objects whose fit was rejected (they keep their Gaussians).
+    pub sq_rejected: u32,
+    /// Live superquadric tracks after this frame.
+    pub tracks: u32,
+    /// Tracks started this frame.
+    pub new_tracks: u32,
+    /// Sum of the rotation changes of the tracks updated this frame, degrees (J_sq numerator).
+    pub sq_jump_sum_deg: f32,
+    /// Track updates this frame that had a previous state (J_sq denominator).
+    pub sq_jumps: u32,
     /// Points in outlier clusters (too small to map).
     pub outlier_points: u32,
     /// Points lost to a full pool.
@@ -109,6 +129,9 @@ pub struct Mapper<'s> {
     hit_overflows: u32,
     planes: Bounded<'s, Plane>,
     objects: Bounded<'s, Object>,
+    tracker: Tracker<'s>,
+    sq_points: &'s mut [Vec3],
+    sq_points_peak: usize,
     report: FrameReport,
     frames: u32,
 }
@@ -132,6 +155,9 @@ impl<'s> Mapper<'s> {
             hit_overflows: 0,
             planes: Bounded::new(parts.planes),
             objects: Bounded::new(parts.objects),
+            tracker: Tracker::new(Bounded::new(parts.tracks)),
+            sq_points: parts.sq_points,
+            sq_points_peak: 0,
             report: FrameReport::default(),
             frames: 0,
         })
@@ -159,6 +185,7 @@ impl<'s> Mapper<'s> {
         self.stage_gaussians(&checked);
         self.stage_annotate(&checked);
         self.stage_separate(&checked);
+        self.stage_superquadrics(&checked);
         Ok(self.finish_frame())
     }
 
@@ -319,7 +346,7 @@ impl<'s> Mapper<'s> {
             };
             for &i in members {
                 if let Some(g) = gaussians.get_mut(i as usize) {
-                    (g.role, g.plane) = match plane {
+                    (g.role, g.owner) = match plane {
                         Some(k) if g.instance == 0 => (ROLE_PLANE, k as u8),
                         _ if g.instance != 0 => (ROLE_OBJECT, 0),
                         _ => (ROLE_RESIDUAL, 0),
@@ -338,7 +365,7 @@ impl<'s> Mapper<'s> {
             self.planes.as_mut_slice(),
             &params,
         );
-        objects::group_objects(self.gaussians.as_slice(), &mut self.objects);
+        objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects);
         let count = |role| self.gaussians.as_slice().iter().filter(|g| g.role == role).count() as u32;
         self.report.plane_gaussians = count(ROLE_PLANE);
         self.report.object_gaussians = count(ROLE_OBJECT);
@@ -349,9 +376,133 @@ impl<'s> Mapper<'s> {
         self.report.objects = self.objects.len() as u32;
     }
 
+    /// Stages 9–10: superquadric fits of the objects and their tracks (after [`Mapper::stage_separate`]).
+    pub fn stage_superquadrics(&mut self, checked: &CheckedFrame<'_>) {
+        let params = self.params;
+        self.sq_points_peak = 0;
+        if !params.variant.superquadrics() {
+            return;
+        }
+        self.tracker.begin_frame(&params);
+        let samples = (params.lm_samples as usize).min(superquadric::MAX_SAMPLES);
+        let per_pass = (self.sq_points.len() / samples).clamp(1, MAX_OBJECTS_PER_PASS);
+        let n_objects = self.objects.len();
+        let mut first = 0;
+        while first < n_objects {
+            let last = (first + per_pass).min(n_objects);
+            let mut seen = [0u32; MAX_OBJECTS_PER_PASS];
+            let mut taken = [0usize; MAX_OBJECTS_PER_PASS];
+            let objects = self.objects.as_slice();
+            let gaussians = self.gaussians.as_slice();
+            let sq_points = &mut *self.sq_points;
+            let eligible = |k: usize| objects.get(k).is_some_and(|o| o.points >= params.sq_min_points);
+            supervoxel::for_each_voxel_point(&checked.frame, &params, self.voxels.as_slice(), self.slots, |p, v| {
+                let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
+                let k = g.owner as usize;
+                if g.role != ROLE_OBJECT || k < first || k >= last || !eligible(k) {
+                    return;
+                }
+                let (Some(o), Some(c), Some(t)) = (objects.get(k), seen.get_mut(k - first), taken.get_mut(k - first)) else {
+                    return;
+                };
+                // Evenly spaced over the object's points in pixel order: exactly min(samples, N) of them.
+                let n = o.points as u64;
+                let s = (samples as u64).min(n);
+                if ((*c as u64 + 1) * s) / n > (*c as u64 * s) / n {
+                    if let Some(slot) = sq_points.get_mut((k - first) * samples + *t) {
+                        *slot = p.xyz;
+                        *t += 1;
+                    }
+                }
+                *c += 1;
+            });
+            for k in first..last {
+                let n = taken.get(k - first).copied().unwrap_or(0);
+                self.sq_points_peak = self.sq_points_peak.max((k - first) * samples + n);
+                self.fit_object(k, n, (k - first) * samples, checked);
+            }
+            first = last;
+        }
+        self.report.tracks = self.tracker.tracks.len() as u32;
+    }
+
+    /// Fits object `k` to its `n` sampled points at `offset` in the fit-point pool and updates its track.
+    fn fit_object(&mut self, k: usize, n: usize, offset: usize, checked: &CheckedFrame<'_>) {
+        let params = self.params;
+        let Some(object) = self.objects.get(k).copied() else { return };
+        let mut state = SQ_NONE;
+        let mut sq = Superquadric::default_shape();
+        let mut error = 0.0;
+        let mut track = 0;
+        if object.points >= params.sq_min_points {
+            let mut m = Moments::about(linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5));
+            for g in self.gaussians.as_slice().iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize == k) {
+                m.add_gaussian(g.mean, g.covariance, g.count as f32);
+            }
+            let e = linalg::sym_eigen(m.covariance());
+            let frame = linalg::from_columns(e.vectors[0], e.vectors[1], e.vectors[2]);
+            let points = self.sq_points.get(offset..offset + n).unwrap_or(&[]);
+            state = SQ_REJECTED;
+            if let Some(fit) = superquadric::fit(points, &frame, object.bbox_min, object.bbox_max, &params) {
+                error = fit.error;
+                if fit.accepted {
+                    state = SQ_ACCEPTED;
+                    let pose = checked.frame.pose;
+                    let to_track = |q: &Superquadric| match pose {
+                        Some(p) => Superquadric {
+                            centre: p.to_world(q.centre),
+                            rotation: linalg::mat_mul(&p.rotation, &q.rotation),
+                            ..*q
+                        },
+                        None => *q,
+                    };
+                    let to_camera = |q: &Superquadric| match pose {
+                        Some(p) => Superquadric {
+                            centre: p.to_camera(q.centre),
+                            rotation: linalg::mat_mul(&linalg::transpose(&p.rotation), &q.rotation),
+                            ..*q
+                        },
+                        None => *q,
+                    };
+                    let updated = self.tracker.update(&to_track(&fit.sq), object.class, &params, params.variant.aligns());
+                    sq = to_camera(&updated.sq);
+                    track = updated.index.and_then(|i| self.tracker.tracks.get(i)).map_or(0, |t| t.id);
+                    if updated.new {
+                        self.report.new_tracks += 1;
+                    } else if updated.index.is_some() {
+                        self.report.sq_jump_sum_deg += updated.jump_deg;
+                        self.report.sq_jumps += 1;
+                    }
+                }
+            }
+        }
+        match state {
+            SQ_ACCEPTED => self.report.sqs += 1,
+            SQ_REJECTED => self.report.sq_rejected += 1,
+            _ => {}
+        }
+        if let Some(o) = self.objects.get_mut(k) {
+            o.sq = sq;
+            o.sq_state = state;
+            o.sq_error = error;
+            o.track = track;
+        }
+    }
+
+    /// Whether Gaussian `g` of the last frame is a GMM primitive of the map (a residual Gaussian, or one of an
+    /// object without an accepted superquadric).
+    pub fn is_gmm_primitive(&self, g: &Gaussian) -> bool {
+        match g.role {
+            ROLE_RESIDUAL => true,
+            ROLE_OBJECT => self.objects.get(g.owner as usize).is_none_or(|o| o.sq_state != SQ_ACCEPTED),
+            _ => false,
+        }
+    }
+
     /// Closes the frame's accounting and returns its report.
     pub fn finish_frame(&mut self) -> &FrameReport {
         self.frames += 1;
+        self.report.gmms = self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)).count() as u32;
         let n = self.voxels.len();
         let slots = self.report.pools[1];
         self.report.pools = [
@@ -369,6 +520,8 @@ impl<'s> Mapper<'s> {
             },
             self.planes.usage(),
             self.objects.usage(),
+            self.tracker.tracks.usage(),
+            PoolUsage { peak: self.sq_points_peak, capacity: self.sq_points.len(), overflow_events: 0 },
         ];
         self.report.overflow_events = self.report.pools.iter().map(|p| p.overflow_events).sum();
         &self.report
@@ -404,16 +557,16 @@ impl<'s> Mapper<'s> {
         self.objects.as_slice()
     }
 
+    /// Superquadric tracks after the last frame.
+    pub fn tracks(&self) -> &[Track] {
+        self.tracker.tracks.as_slice()
+    }
+
     /// Calls `f(point, voxel)` for every sampled point of `checked` with the voxel it fell into (labels tell
     /// its supervoxel and Gaussian). `checked` must be the frame last processed for the labels to mean anything.
     pub fn for_each_labelled_point(&self, checked: &CheckedFrame<'_>, mut f: impl FnMut(&Point, Option<&Voxel>)) {
-        let voxels = self.voxels.as_slice();
-        let r = self.params.voxel_resolution;
-        points::for_each_point(&checked.frame, &self.params, |p| {
-            let v = supervoxel::voxel_key(p.xyz, r)
-                .and_then(|k| supervoxel::find_voxel(voxels, self.slots, k))
-                .and_then(|i| voxels.get(i));
-            f(p, v);
+        supervoxel::for_each_voxel_point(&checked.frame, &self.params, self.voxels.as_slice(), self.slots, |p, v| {
+            f(p, v.map(|(_, v)| v))
         });
     }
 }

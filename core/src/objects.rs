@@ -10,6 +10,14 @@ use bytemuck::Zeroable;
 use crate::gmm::{Gaussian, ROLE_OBJECT};
 use crate::linalg::{self, Vec3};
 use crate::pool::Bounded;
+use crate::superquadric::Superquadric;
+
+/// The object has too few points for a superquadric (or the variant fits none): it keeps its Gaussians.
+pub const SQ_NONE: u8 = 0;
+/// The fit was rejected (error or validity): the object falls back to its Gaussians.
+pub const SQ_REJECTED: u8 = 1;
+/// The object is represented by a superquadric.
+pub const SQ_ACCEPTED: u8 = 2;
 
 /// One semantic object support set O_j.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
@@ -33,12 +41,23 @@ pub struct Object {
     pub bbox_max: Vec3,
     /// Its projected support box `[u0, v0, u1, v1]`, pixels.
     pub pixel_bbox: [u16; 4],
+    /// Its superquadric (camera frame; the smoothed track state when tracked), valid when `sq_state` is
+    /// [`SQ_ACCEPTED`].
+    pub sq: Superquadric,
+    /// E_sq of the fit (before smoothing).
+    pub sq_error: f32,
+    /// [`SQ_NONE`], [`SQ_REJECTED`] or [`SQ_ACCEPTED`].
+    pub sq_state: u8,
+    /// Id of its superquadric track.
+    pub track: u16,
 }
 
-/// Groups the object-role Gaussians by instance id, in order of first appearance.
-pub fn group_objects(gaussians: &[Gaussian], objects: &mut Bounded<'_, Object>) {
+/// Groups the object-role Gaussians by instance id, in order of first appearance, and marks each with its
+/// object index (`owner`).
+pub fn group_objects(gaussians: &mut [Gaussian], objects: &mut Bounded<'_, Object>) {
     objects.clear();
-    for g in gaussians.iter().filter(|g| g.role == ROLE_OBJECT) {
+    for g in gaussians.iter_mut().filter(|g| g.role == ROLE_OBJECT) {
+        g.owner = u8::MAX;
         let k = match objects.as_slice().iter().position(|o| o.instance == g.instance) {
             Some(k) => k,
             None => {
@@ -56,6 +75,7 @@ pub fn group_objects(gaussians: &[Gaussian], objects: &mut Bounded<'_, Object>) 
             }
         };
         let Some(o) = objects.get_mut(k) else { continue };
+        g.owner = k as u8;
         let n = o.points as f32;
         o.support_ratio = (o.support_ratio * n + g.support_ratio * g.count as f32) / (n + g.count as f32);
         o.points += g.count;

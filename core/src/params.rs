@@ -50,6 +50,16 @@ impl Variant {
         matches!(self, Variant::Full | Variant::Wsqa)
     }
 
+    /// Whether semantic objects are fitted with superquadrics and tracked.
+    pub fn superquadrics(self) -> bool {
+        matches!(self, Variant::Full | Variant::Pmsao | Variant::Wsqa)
+    }
+
+    /// Whether superquadric measurements are aligned with their track before smoothing (not in WSQA).
+    pub fn aligns(self) -> bool {
+        !matches!(self, Variant::Wsqa)
+    }
+
     /// Whether flat planes are separated.
     pub fn planes(self) -> bool {
         !matches!(self, Variant::Mmog)
@@ -180,6 +190,9 @@ pub struct Params {
     pub alpha_r: f32,
     /// Axes and shape EMA weight α_s (paper: 0.35).
     pub alpha_s: f32,
+    /// A track not updated for more than this many frames is retired (open in the paper; 10 frames keeps an
+    /// object through short occlusions and mask dropouts).
+    pub track_max_missed: u32,
 }
 
 impl Default for Params {
@@ -227,6 +240,7 @@ impl Default for Params {
             alpha_c: 0.6,
             alpha_r: 0.35,
             alpha_s: 0.35,
+            track_max_missed: 10,
         }
     }
 }

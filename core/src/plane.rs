@@ -14,7 +14,6 @@ use crate::frame::Frame;
 use crate::gmm::{Gaussian, ROLE_PLANE};
 use crate::linalg::{self, Eigen3, Vec3};
 use crate::params::Params;
-use crate::points;
 use crate::supervoxel::{self, Voxel};
 
 /// Cells per side of a plane's occupancy grid (±2 m around the centroid at g_p = 5 cm).
@@ -129,15 +128,12 @@ pub fn fill_cells(
     if planes.is_empty() {
         return;
     }
-    let r = params.voxel_resolution;
-    points::for_each_point(frame, params, |p| {
-        let Some(key) = supervoxel::voxel_key(p.xyz, r) else { return };
-        let Some(v) = supervoxel::find_voxel(voxels, slots, key).and_then(|i| voxels.get(i)) else { return };
-        let Some(g) = gaussians.get(v.gaussian as usize) else { return };
+    supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+        let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
         if g.role != ROLE_PLANE {
             return;
         }
-        let Some(plane) = planes.get_mut(g.plane as usize) else { return };
+        let Some(plane) = planes.get_mut(g.owner as usize) else { return };
         match plane.cell_of(p.xyz, params.g_p) {
             Some((a, b)) => plane.occupy(a, b),
             None => plane.clipped_points += 1,

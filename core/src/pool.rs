@@ -24,11 +24,15 @@ pub enum PoolId {
     Planes,
     /// Semantic object support sets.
     Objects,
+    /// Superquadric tracks.
+    Tracks,
+    /// Points sampled for superquadric fits.
+    SqPoints,
 }
 
 impl PoolId {
     /// Number of pools.
-    pub const COUNT: usize = 10;
+    pub const COUNT: usize = 12;
     /// All pools in report order.
     pub const ALL: [PoolId; PoolId::COUNT] = [
         PoolId::Voxels,
@@ -41,6 +45,8 @@ impl PoolId {
         PoolId::MaskHits,
         PoolId::Planes,
         PoolId::Objects,
+        PoolId::Tracks,
+        PoolId::SqPoints,
     ];
 
     /// Snake-case name used in `summary.json` and `memory_budget.md`.
@@ -56,6 +62,8 @@ impl PoolId {
             PoolId::MaskHits => "mask_hits",
             PoolId::Planes => "planes",
             PoolId::Objects => "objects",
+            PoolId::Tracks => "tracks",
+            PoolId::SqPoints => "sq_points",
         }
     }
 }

@@ -9,7 +9,9 @@ use bytemuck::Zeroable;
 use crate::annotate::MaskHit;
 use crate::gmm::{Gaussian, SplitTask};
 use crate::objects::Object;
+use crate::linalg::Vec3;
 use crate::plane::Plane;
+use crate::track::Track;
 use crate::mapper::Mapper;
 use crate::pool::PoolId;
 use crate::supervoxel::{SeedCell, Supervoxel, Voxel};
@@ -23,6 +25,7 @@ pub const SPLIT_STACK: usize = 64;
 /// - `H`: voxel hash slots (about 2 × `V` keeps linear probing short);
 /// - `C`: seed cells; `S`: supervoxels; `G`: Gaussians;
 /// - `M`: mask-hit counters (a hash table: about 2 × the annotated Gaussians); `L`: planes; `O`: objects;
+/// - `T`: superquadric tracks; `Q`: superquadric fit points (objects are sampled `Q / lm_samples` per pass);
 /// - `P`: largest frame, pixels.
 #[derive(Zeroable)]
 #[repr(C)]
@@ -35,6 +38,8 @@ pub struct Storage<
     const M: usize,
     const L: usize,
     const O: usize,
+    const T: usize,
+    const Q: usize,
     const P: usize,
 > {
     pub(crate) voxels: [Voxel; V],
@@ -47,6 +52,8 @@ pub struct Storage<
     pub(crate) mask_hits: [MaskHit; M],
     pub(crate) planes: [Plane; L],
     pub(crate) objects: [Object; O],
+    pub(crate) tracks: [Track; T],
+    pub(crate) sq_points: [Vec3; Q],
 }
 
 /// Mutable views of every pool of one storage.
@@ -71,6 +78,10 @@ pub struct Parts<'a> {
     pub planes: &'a mut [Plane],
     /// Objects.
     pub objects: &'a mut [Object],
+    /// Superquadric tracks.
+    pub tracks: &'a mut [Track],
+    /// Superquadric fit points.
+    pub sq_points: &'a mut [Vec3],
 }
 
 /// A capacity profile: storage the mapper can run in.
@@ -90,8 +101,10 @@ impl<
         const M: usize,
         const L: usize,
         const O: usize,
+        const T: usize,
+        const Q: usize,
         const P: usize,
-    > Profile for Storage<V, H, C, S, G, M, L, O, P>
+    > Profile for Storage<V, H, C, S, G, M, L, O, T, Q, P>
 {
     const MAX_PIXELS: usize = P;
     fn parts(&mut self) -> Parts<'_> {
@@ -108,6 +121,8 @@ impl<
             mask_hits: &mut self.mask_hits,
             planes: &mut self.planes,
             objects: &mut self.objects,
+            tracks: &mut self.tracks,
+            sq_points: &mut self.sq_points,
         }
     }
 }
@@ -121,8 +136,10 @@ impl<
         const M: usize,
         const L: usize,
         const O: usize,
+        const T: usize,
+        const Q: usize,
         const P: usize,
-    > Storage<V, H, C, S, G, M, L, O, P>
+    > Storage<V, H, C, S, G, M, L, O, T, Q, P>
 {
     /// Every pool as (pool, capacity, bytes per element), in report order — the rows of `memory_budget.md`.
     pub const POOLS: [(PoolId, usize, usize); PoolId::COUNT] = [
@@ -136,6 +153,8 @@ impl<
         (PoolId::MaskHits, M, core::mem::size_of::<MaskHit>()),
         (PoolId::Planes, L, core::mem::size_of::<Plane>()),
         (PoolId::Objects, O, core::mem::size_of::<Object>()),
+        (PoolId::Tracks, T, core::mem::size_of::<Track>()),
+        (PoolId::SqPoints, Q, core::mem::size_of::<Vec3>()),
     ];
 
     /// Compile-time check that voxel, supervoxel and Gaussian indices fit `u16` beside the reserved labels.
@@ -144,6 +163,8 @@ impl<
             && S < crate::supervoxel::DROPPED as usize
             && G < crate::supervoxel::DROPPED as usize
             && L < 255
+            && O < 255
+            && Q >= crate::superquadric::MAX_SAMPLES
             && H >= V
             && V >= G
     );
@@ -153,10 +174,10 @@ impl<
 }
 
 /// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included.
-pub type McuStorage = Storage<8192, 16384, 128, 128, 576, 1024, 8, 32, { 640 * 480 }>;
+pub type McuStorage = Storage<8192, 16384, 128, 128, 576, 1024, 8, 32, 16, 256, { 640 * 480 }>;
 
 /// The `host` profile: larger pools for workstation replays (frames up to 1280×1024).
-pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 255, { 1280 * 1024 }>;
+pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }>;
 
 /// RAM budget of the `mcu` profile, bytes.
 pub const MCU_BUDGET_BYTES: usize = 512 * 1024;

@@ -68,6 +68,11 @@ fn spow(w: f32, e: f32) -> f32 {
 }
 
 impl Superquadric {
+    /// A unit sphere at the origin (placeholder for "no superquadric").
+    pub fn default_shape() -> Superquadric {
+        Superquadric { scales: [1.0; 3], eps: [1.0, 1.0], centre: [0.0; 3], rotation: linalg::IDENTITY }
+    }
+
     /// Local coordinates p̃ = Rᵀ(p − t).
     #[inline]
     pub fn local(&self, p: Vec3) -> Vec3 {

@@ -201,6 +201,23 @@ pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl
     }
 }
 
+/// Calls `f(point, voxel)` for every sampled point of `frame` with the index and record of the voxel it fell
+/// into (`None` when it found no voxel: pool full or outside the key range). The one way every stage after
+/// voxelisation revisits the points.
+pub fn for_each_voxel_point(
+    frame: &Frame<'_>,
+    params: &Params,
+    voxels: &[Voxel],
+    slots: &[u16],
+    mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
+) {
+    let r = params.voxel_resolution;
+    points::for_each_point(frame, params, |p| {
+        let v = voxel_key(p.xyz, r).and_then(|k| find_voxel(voxels, slots, k)).and_then(|i| voxels.get(i).map(|v| (i, v)));
+        f(p, v);
+    });
+}
+
 /// Counts of the voxel stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct VoxelStats {

@@ -16,7 +16,7 @@ fn plane_depth() -> Vec<u16> {
 }
 
 fn frame<'a>(depth: &'a [u16], colour: &'a [u8]) -> Frame<'a> {
-    Frame { width: W, height: H, depth, depth_scale: 5000.0, colour, intrinsics: K }
+    Frame { width: W, height: H, depth, depth_scale: 5000.0, colour, intrinsics: K, pose: None }
 }
 
 fn with_mapper(f: impl FnOnce(&mut Mapper<'_>)) {
@@ -57,6 +57,16 @@ fn malformed_frames_are_errors() {
         assert_eq!(m.process(frame(&far, &colour), None).unwrap_err(), FrameError::NoValidDepth);
         let stuck = vec![7000u16; depth.len()];
         assert_eq!(m.process(frame(&stuck, &colour), None).unwrap_err(), FrameError::ConstantDepth { raw: 7000 });
+        use m2smap_core::Pose;
+        let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        assert!(m.process(Frame { pose: Some(Pose { rotation: identity, translation: [1.0, 2.0, 3.0] }), ..good }, None).is_ok());
+        for bad in [
+            Pose { rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]], translation: [0.0; 3] }, // a reflection
+            Pose { rotation: [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0; 3] },
+            Pose { rotation: identity, translation: [f32::NAN, 0.0, 0.0] },
+        ] {
+            assert_eq!(m.process(Frame { pose: Some(bad), ..good }, None).unwrap_err(), FrameError::BadPose);
+        }
         let empty = Frame { width: 0, height: 0, depth: &[], colour: &[], ..good };
         assert_eq!(m.process(empty, None).unwrap_err(), FrameError::EmptyFrame);
     });
@@ -69,7 +79,7 @@ fn frames_larger_than_the_profile_are_refused() {
     let (w, h) = (800u16, 600u16);
     let depth = vec![5000u16; w as usize * h as usize];
     let colour = vec![0u8; depth.len() * 3];
-    let f = Frame { width: w, height: h, depth: &depth, depth_scale: 5000.0, colour: &colour, intrinsics: K };
+    let f = Frame { width: w, height: h, depth: &depth, depth_scale: 5000.0, colour: &colour, intrinsics: K, pose: None };
     assert_eq!(
         mapper.process(f, None).unwrap_err(),
         FrameError::TooLarge { pixels: 480_000, max_pixels: 640 * 480 }

@@ -84,6 +84,15 @@ impl Pose {
         ]
     }
 
+    /// The core's single-precision pose.
+    pub fn to_core(&self) -> m2smap_core::Pose {
+        let r = self.rotation();
+        m2smap_core::Pose {
+            rotation: r.map(|row| row.map(|x| x as f32)),
+            translation: self.t.map(|x| x as f32),
+        }
+    }
+
     /// Maps a camera-frame point to the world frame.
     pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
         let r = self.rotation();
@@ -298,7 +307,7 @@ pub struct LoadedFrame {
 }
 
 impl LoadedFrame {
-    /// The core's borrowed view of this frame.
+    /// The core's borrowed view of this frame (no pose: superquadric tracks stay in the camera frame).
     pub fn view<'a>(&'a self, camera: &Camera) -> Frame<'a> {
         Frame {
             width: self.width,
@@ -307,7 +316,13 @@ impl LoadedFrame {
             depth_scale: camera.depth_scale,
             colour: &self.colour,
             intrinsics: camera.intrinsics(),
+            pose: None,
         }
+    }
+
+    /// The core's view with a camera-to-world pose (tracks then live in the world frame).
+    pub fn view_posed<'a>(&'a self, camera: &Camera, pose: Option<&Pose>) -> Frame<'a> {
+        Frame { pose: pose.map(Pose::to_core), ..self.view(camera) }
     }
 }
 

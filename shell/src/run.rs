@@ -102,6 +102,16 @@ pub struct FrameRecord {
     pub object_gaussians: u32,
     /// Residual Gaussians.
     pub residual_gaussians: u32,
+    /// Objects whose superquadric fit was rejected.
+    pub sq_rejected: u32,
+    /// Live superquadric tracks.
+    pub tracks: u32,
+    /// Tracks started in this frame.
+    pub new_tracks: u32,
+    /// Sum of track rotation changes this frame, degrees.
+    pub sq_jump_sum_deg: f64,
+    /// Track updates with a previous state this frame.
+    pub sq_jumps: u32,
     /// Points in outlier clusters.
     pub outlier_points: u32,
     /// Points lost to full pools.
@@ -155,6 +165,10 @@ pub struct Summary {
     pub objects: f64,
     /// Fraction of frames with at least one plane.
     pub frames_with_plane: f64,
+    /// Fraction of frames with at least one accepted superquadric.
+    pub frames_with_sq: f64,
+    /// Tracks started over the run.
+    pub tracks_started: u64,
     /// Mean primitive counts.
     pub primitives: Primitives,
     /// Mean payload, bytes.
@@ -261,7 +275,7 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         };
         let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
         let gt = if gt_path.is_file() { Some(read_depth(&gt_path)?.2) } else { None };
-        let frame = loaded.view(&dataset.camera);
+        let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
         let start = Instant::now();
         let report = *mapper
             .process(frame, masks.as_ref().map(|m| m.view()))
@@ -274,7 +288,8 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             (None, Some(m)) => m.id_at(u, v),
             (None, None) => 0,
         });
-        let gmm = (report.object_gaussians + report.residual_gaussians) as f64;
+        let gmm = report.gmms as f64;
+        let sq = params.variant.superquadrics().then_some(report.sqs as f64);
         let record = FrameRecord {
             index,
             stem: fref.stem.clone(),
@@ -292,20 +307,24 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             residual_gaussians: report.residual_gaussians,
             outlier_points: report.outlier_points,
             dropped_points: report.dropped_points,
-            // Until superquadrics land, every non-plane Gaussian is a GMM primitive.
             primitives: Primitives {
                 plane: Some(report.planes as f64),
-                sq: None,
+                sq: Some(sq.unwrap_or(0.0)),
                 gmm: Some(gmm),
-                total: Some(report.planes as f64 + gmm),
+                total: Some(report.planes as f64 + sq.unwrap_or(0.0) + gmm),
             },
+            sq_rejected: report.sq_rejected,
+            tracks: report.tracks,
+            new_tracks: report.new_tracks,
+            sq_jump_sum_deg: report.sq_jump_sum_deg as f64,
+            sq_jumps: report.sq_jumps,
             payload_bytes: None,
             g2r_rmse_m: None,
             r2g_rmse_m: None,
             r_c: Some(report.r_c as f64),
             a_s: semantic.a_s,
             n_adh: Some(semantic.n_adh as f64),
-            j_sq_deg: None,
+            j_sq_deg: (report.sq_jumps > 0).then(|| report.sq_jump_sum_deg as f64 / report.sq_jumps as f64),
             pools: pool_records(&report),
             overflow_events: report.overflow_events as u64,
         };
@@ -354,9 +373,11 @@ fn summarise(records: &[FrameRecord], variant: Variant, profile: ProfileChoice) 
         clusters: mean(records.iter().map(|r| r.clusters as f64)),
         objects: mean(records.iter().map(|r| r.objects as f64)),
         frames_with_plane: mean(records.iter().map(|r| if r.primitives.plane.unwrap_or(0.0) > 0.0 { 1.0 } else { 0.0 })),
+        frames_with_sq: mean(records.iter().map(|r| if r.primitives.sq.unwrap_or(0.0) > 0.0 { 1.0 } else { 0.0 })),
+        tracks_started: records.iter().map(|r| r.new_tracks as u64).sum(),
         primitives: Primitives {
             plane: mean_of(records.iter().map(|r| r.primitives.plane)),
-            sq: None,
+            sq: mean_of(records.iter().map(|r| r.primitives.sq)),
             gmm: mean_of(records.iter().map(|r| r.primitives.gmm)),
             total: mean_of(records.iter().map(|r| r.primitives.total)),
         },
@@ -366,7 +387,11 @@ fn summarise(records: &[FrameRecord], variant: Variant, profile: ProfileChoice) 
         r_c: mean_of(records.iter().map(|r| r.r_c)),
         a_s: mean_of(records.iter().map(|r| r.a_s)),
         n_adh: mean_of(records.iter().map(|r| r.n_adh)),
-        j_sq_deg: None,
+        // Mean over every consecutive update of every track (not a mean of per-frame means).
+        j_sq_deg: {
+            let jumps: u64 = records.iter().map(|r| r.sq_jumps as u64).sum();
+            (jumps > 0).then(|| records.iter().map(|r| r.sq_jump_sum_deg).sum::<f64>() / jumps as f64)
+        },
         pools,
         overflow_events: records.iter().map(|r| r.overflow_events).sum(),
     }

@@ -1,0 +1,280 @@
+//! Stage 10: superquadric tracks across frames (paper §V-B, equations 14–18).
+//!
+//! Tracks live in the world frame when frames carry a camera pose, else in the camera frame. A measurement
+//! (an accepted superquadric) is associated with the nearest track of the same label whose centre lies within
+//! `d_max` (equations 14–15; each track takes at most one measurement per frame, measurements in object
+//! order); without one a new track starts. A matched measurement is first aligned with the track (equation 16:
+//! the 8 proper pairs (R̂·P·D, Pᵀ·ŝ) of an x-y swap P and axis sign flips D, chosen by equation 17 with
+//! β = 1 / mean(s_{t−1})², which makes the scale term unit-free), then smoothed: centre EMA α_c, rotation SLERP
+//! α_R along the shortest path, half-axes and exponents EMA α_s (equation 18). The `wsqa` variant skips the
+//! alignment. A track not updated for `track_max_missed` frames is retired.
+
+use bytemuck::Zeroable;
+
+use crate::linalg::{self, Mat3, Vec3};
+use crate::params::Params;
+use crate::pool::Bounded;
+use crate::superquadric::Superquadric;
+
+/// One superquadric track.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct Track {
+    /// The smoothed superquadric (world frame when poses are given).
+    pub sq: Superquadric,
+    /// Track id, unique over the mapper's lifetime (wraps at 65 535).
+    pub id: u16,
+    /// Category label ℓ.
+    pub class: u16,
+    /// Frame number of the last update.
+    pub last_frame: u32,
+    /// Updates so far (the first measurement included).
+    pub updates: u32,
+    /// Rotation change of the last update, degrees (0 for a new track).
+    pub last_jump_deg: f32,
+}
+
+/// The 8 proper equivalents (R·P·D, Pᵀ·s) of a superquadric's frame (equation 16).
+pub fn equivalents(rotation: &Mat3, scales: Vec3) -> [(Mat3, Vec3); 8] {
+    let (c0, c1, c2) = (linalg::column(rotation, 0), linalg::column(rotation, 1), linalg::column(rotation, 2));
+    let flip = |c: Vec3, s: f32| linalg::scale(c, s);
+    // P = I with det D = +1, then P = P_xy (columns 0 and 1 swapped, scales swapped) with det D = −1.
+    let same = [(1.0, 1.0, 1.0), (1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0)];
+    let swapped = [(-1.0, 1.0, 1.0), (1.0, -1.0, 1.0), (1.0, 1.0, -1.0), (-1.0, -1.0, -1.0)];
+    let mut out = [(linalg::IDENTITY, scales); 8];
+    for (o, (dx, dy, dz)) in out.iter_mut().zip(same) {
+        *o = (linalg::from_columns(flip(c0, dx), flip(c1, dy), flip(c2, dz)), scales);
+    }
+    for (o, (dx, dy, dz)) in out.iter_mut().skip(4).zip(swapped) {
+        *o = (linalg::from_columns(flip(c1, dx), flip(c0, dy), flip(c2, dz)), [scales[1], scales[0], scales[2]]);
+    }
+    out
+}
+
+/// Largest |ε1 − ε2| for which a superquadric counts as cube-symmetric (see [`align`]).
+pub const CUBIC_EPS_GAP: f32 = 0.1;
+
+/// The frame with its axes cycled `k` times (x → y → z → x), scales alongside; a proper rotation.
+fn cycle(rotation: &Mat3, scales: Vec3, k: usize) -> (Mat3, Vec3) {
+    let c = [linalg::column(rotation, 0), linalg::column(rotation, 1), linalg::column(rotation, 2)];
+    let (i, j, l) = match k % 3 {
+        0 => (0, 1, 2),
+        1 => (1, 2, 0),
+        _ => (2, 0, 1),
+    };
+    let pick = |n: usize| c.get(n).copied().unwrap_or([0.0; 3]);
+    let s = |n: usize| scales.get(n).copied().unwrap_or(0.0);
+    (linalg::from_columns(pick(i), pick(j), pick(l)), [s(i), s(j), s(l)])
+}
+
+/// Equation 17: the equivalent of the measurement closest to the previous state, maximising
+/// tr(R_{t−1}ᵀ R) − β‖s_{t−1} − s‖².
+///
+/// The paper's set (equation 16) keeps the local z axis. m2smap's fit tries each PCA axis as z, so when both
+/// shapes are cube-symmetric (|ε1 − ε2| ≤ [`CUBIC_EPS_GAP`], a box or a sphere, where exchanging z with x or y
+/// leaves the shape unchanged) the three cyclic axis permutations of each of the 8 pairs are candidates too
+/// (24 in all); a cylinder keeps its axis as z.
+pub fn align(previous: &Superquadric, measured: &Superquadric) -> Superquadric {
+    let mean_s = (previous.scales[0] + previous.scales[1] + previous.scales[2]) / 3.0;
+    let beta = 1.0 / (mean_s * mean_s).max(1e-6);
+    let prev_t = linalg::transpose(&previous.rotation);
+    let cubic = |q: &Superquadric| libm::fabsf(q.eps[0] - q.eps[1]) <= CUBIC_EPS_GAP;
+    let cycles = if cubic(previous) && cubic(measured) { 3 } else { 1 };
+    let mut best = (f32::NEG_INFINITY, *measured);
+    for k in 0..cycles {
+        let (rc, sc) = cycle(&measured.rotation, measured.scales, k);
+        for (r, s) in equivalents(&rc, sc) {
+            let m = linalg::mat_mul(&prev_t, &r);
+            let d = linalg::sub(previous.scales, s);
+            let score = m[0][0] + m[1][1] + m[2][2] - beta * linalg::dot(d, d);
+            if score > best.0 {
+                best = (score, Superquadric { rotation: r, scales: s, ..*measured });
+            }
+        }
+    }
+    best.1
+}
+
+/// Equation 18: the smoothed state from the previous state and an aligned measurement.
+pub fn smooth(previous: &Superquadric, aligned: &Superquadric, params: &Params) -> Superquadric {
+    let ema = |a: f32, b: f32, alpha: f32| alpha * b + (1.0 - alpha) * a;
+    let ema3 = |a: Vec3, b: Vec3, alpha: f32| [ema(a[0], b[0], alpha), ema(a[1], b[1], alpha), ema(a[2], b[2], alpha)];
+    let q = linalg::slerp(
+        linalg::quat_from_matrix(&previous.rotation),
+        linalg::quat_from_matrix(&aligned.rotation),
+        params.alpha_r,
+    );
+    Superquadric {
+        centre: ema3(previous.centre, aligned.centre, params.alpha_c),
+        rotation: linalg::matrix_from_quat(q),
+        scales: ema3(previous.scales, aligned.scales, params.alpha_s),
+        eps: [ema(previous.eps[0], aligned.eps[0], params.alpha_s), ema(previous.eps[1], aligned.eps[1], params.alpha_s)],
+    }
+}
+
+/// The track state of a frame's superquadrics.
+pub struct Tracker<'a> {
+    /// The tracks.
+    pub tracks: Bounded<'a, Track>,
+    /// Next track id.
+    pub next_id: u16,
+    /// Frames seen (the frame number of the next update).
+    pub frame: u32,
+}
+
+/// What an update did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Updated {
+    /// Index of the track in the pool, `None` when the pool was full (the measurement is used unsmoothed).
+    pub index: Option<usize>,
+    /// Whether a new track was started.
+    pub new: bool,
+    /// Rotation change of the track, degrees (0 for a new track).
+    pub jump_deg: f32,
+    /// The smoothed superquadric (tracking frame).
+    pub sq: Superquadric,
+}
+
+impl<'a> Tracker<'a> {
+    /// A tracker over `tracks`.
+    pub fn new(tracks: Bounded<'a, Track>) -> Self {
+        Tracker { tracks, next_id: 0, frame: 0 }
+    }
+
+    /// Starts a frame: retires tracks not updated for more than `track_max_missed` frames.
+    pub fn begin_frame(&mut self, params: &Params) {
+        self.frame = self.frame.wrapping_add(1);
+        let frame = self.frame;
+        let mut keep = 0;
+        let n = self.tracks.len();
+        let slice = self.tracks.as_mut_slice();
+        for i in 0..n {
+            let Some(t) = slice.get(i).copied() else { continue };
+            if frame.wrapping_sub(t.last_frame) <= params.track_max_missed + 1 {
+                if let Some(slot) = slice.get_mut(keep) {
+                    *slot = t;
+                }
+                keep += 1;
+            }
+        }
+        while self.tracks.len() > keep {
+            self.tracks.pop();
+        }
+    }
+
+    /// Associates, aligns and smooths one measurement (`sq` in the tracking frame, label `class`).
+    pub fn update(&mut self, sq: &Superquadric, class: u16, params: &Params, align_equivalents: bool) -> Updated {
+        let frame = self.frame;
+        let mut best: Option<(f32, usize)> = None;
+        for (i, t) in self.tracks.as_slice().iter().enumerate() {
+            if t.class != class || t.last_frame == frame {
+                continue;
+            }
+            let d = linalg::norm(linalg::sub(t.sq.centre, sq.centre));
+            if d <= params.d_max && best.is_none_or(|(bd, _)| d < bd) {
+                best = Some((d, i));
+            }
+        }
+        if let Some((_, i)) = best {
+            if let Some(t) = self.tracks.get_mut(i) {
+                let aligned = if align_equivalents { align(&t.sq, sq) } else { *sq };
+                let smoothed = smooth(&t.sq, &aligned, params);
+                let jump = linalg::rotation_angle_between(&t.sq.rotation, &smoothed.rotation);
+                t.sq = smoothed;
+                t.last_frame = frame;
+                t.updates += 1;
+                t.last_jump_deg = jump.to_degrees();
+                return Updated { index: Some(i), new: false, jump_deg: t.last_jump_deg, sq: smoothed };
+            }
+        }
+        let track = Track { sq: *sq, id: self.next_id, class, last_frame: frame, updates: 1, last_jump_deg: 0.0 };
+        let index = self.tracks.push(track);
+        if index.is_some() {
+            self.next_id = self.next_id.wrapping_add(1);
+        }
+        Updated { index, new: index.is_some(), jump_deg: 0.0, sq: *sq }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn boxlike(rotation: Mat3, scales: Vec3) -> Superquadric {
+        Superquadric { scales, eps: [0.2, 0.2], centre: [0.1, 0.0, 1.5], rotation }
+    }
+
+    #[test]
+    fn every_equivalent_of_a_box_aligns_back_within_a_degree() {
+        let r = linalg::rotation_from_vector([0.3, -0.5, 0.8]);
+        let previous = boxlike(r, [0.3, 0.2, 0.1]);
+        let noise = linalg::rotation_from_vector([0.004, -0.003, 0.005]); // about 0.4°
+        for (k, (re, se)) in equivalents(&r, previous.scales).into_iter().enumerate() {
+            let det = linalg::dot(linalg::cross(linalg::column(&re, 0), linalg::column(&re, 1)), linalg::column(&re, 2));
+            assert!((det - 1.0).abs() < 1e-5, "equivalent {k} is a proper rotation");
+            let measured = boxlike(linalg::mat_mul(&re, &noise), se);
+            let aligned = align(&previous, &measured);
+            let angle = linalg::rotation_angle_between(&previous.rotation, &aligned.rotation).to_degrees();
+            assert!(angle <= 1.0, "equivalent {k} aligned to {angle:.3} degrees");
+            assert_eq!(aligned.scales, previous.scales, "equivalent {k}: scales permuted back");
+            if k > 0 {
+                let raw = linalg::rotation_angle_between(&previous.rotation, &measured.rotation).to_degrees();
+                assert!(raw > 80.0, "equivalent {k} is a large raw jump ({raw:.1} degrees)");
+            }
+        }
+    }
+
+    #[test]
+    fn a_box_measured_with_another_z_axis_aligns_back() {
+        let r = linalg::rotation_from_vector([0.3, -0.5, 0.8]);
+        let previous = boxlike(r, [0.3, 0.2, 0.1]);
+        for k in 1..3 {
+            let (rc, sc) = cycle(&r, previous.scales, k);
+            let aligned = align(&previous, &boxlike(rc, sc));
+            assert!(linalg::rotation_angle_between(&previous.rotation, &aligned.rotation).to_degrees() < 0.1);
+            assert_eq!(aligned.scales, previous.scales);
+        }
+        // A cylinder (ε2 = 1) keeps its axis: the cycled measurement stays cycled.
+        let cylinder = Superquadric { eps: [0.2, 1.0], ..previous };
+        let (rc, sc) = cycle(&r, previous.scales, 1);
+        let aligned = align(&cylinder, &Superquadric { rotation: rc, scales: sc, ..cylinder });
+        assert!(linalg::rotation_angle_between(&cylinder.rotation, &aligned.rotation).to_degrees() > 60.0);
+    }
+
+    #[test]
+    fn tracks_associate_smooth_and_retire() {
+        let params = Params { track_max_missed: 2, ..Params::default() };
+        let mut storage = [Track::zeroed(); 4];
+        let mut tracker = Tracker::new(Bounded::new(&mut storage));
+        let r = linalg::rotation_from_vector([0.0, 0.2, 0.0]);
+        let base = boxlike(r, [0.3, 0.2, 0.1]);
+        tracker.begin_frame(&params);
+        let first = tracker.update(&base, 7, &params, true);
+        assert!(first.new && first.index == Some(0));
+        // Same object, moved 10 cm and measured with x and y swapped: one track, small jump.
+        let (rs, ss) = equivalents(&r, base.scales)[5];
+        let moved = Superquadric { centre: [0.2, 0.0, 1.5], rotation: rs, scales: ss, ..base };
+        tracker.begin_frame(&params);
+        let second = tracker.update(&moved, 7, &params, true);
+        assert!(!second.new && second.index == Some(0));
+        assert!(second.jump_deg < 1.0, "aligned jump {}", second.jump_deg);
+        assert!((second.sq.centre[0] - (0.6 * 0.2 + 0.4 * 0.1)).abs() < 1e-6, "centre EMA with alpha_c");
+        // Without alignment the same measurement swings the track.
+        let mut storage2 = [Track::zeroed(); 4];
+        let mut raw = Tracker::new(Bounded::new(&mut storage2));
+        raw.begin_frame(&params);
+        raw.update(&base, 7, &params, false);
+        raw.begin_frame(&params);
+        let swung = raw.update(&moved, 7, &params, false);
+        assert!(swung.jump_deg > 20.0, "unaligned jump {}", swung.jump_deg);
+        // Another label or a far centre starts a new track.
+        let far = Superquadric { centre: [1.0, 0.0, 1.5], ..base };
+        assert!(tracker.update(&far, 7, &params, true).new);
+        assert!(tracker.update(&base, 8, &params, true).new);
+        // Unseen for more than track_max_missed frames: retired.
+        for _ in 0..4 {
+            tracker.begin_frame(&params);
+        }
+        assert!(tracker.tracks.is_empty());
+    }
+}
