@@ -176,7 +176,7 @@ fn same_input_gives_identical_output() {
 fn full_pools_drop_and_count_instead_of_panicking() {
     use m2smap_core::{PoolId, Storage};
     // Every pool far too small for a 640x480 frame.
-    type Tiny = Storage<300, 512, 4, 3, 5, 8, 1, 1, { 640 * 480 }>;
+    type Tiny = Storage<300, 512, 4, 3, 5, 8, 1, 1, 1, 128, { 640 * 480 }>;
     let scene = Scene::named("tabletop").unwrap();
     let frame = scene.render(0, Some(2));
     let mut storage = bytemuck::zeroed_box::<Tiny>();

@@ -38,6 +38,7 @@ pub mod frame;
 pub mod fuse;
 pub mod gmm;
 pub mod linalg;
+pub mod map;
 pub mod mapper;
 pub mod masks;
 pub mod objects;
@@ -49,6 +50,7 @@ pub mod profile;
 pub mod superquadric;
 pub mod supervoxel;
 pub mod track;
+pub mod wire;
 
 pub use error::{FrameError, MaskError, ParamError};
 pub use frame::{Frame, Intrinsics, Pose};

@@ -5,6 +5,9 @@ use crate::error::FrameError;
 use crate::fuse;
 use crate::gmm::{ROLE_OBJECT, ROLE_PLANE, ROLE_RESIDUAL};
 use crate::linalg::{self, Moments, Vec3};
+use crate::map::{CellBits, MapGmm, MapPlane, MapSq, Primitive};
+use crate::plane::PLANE_GRID;
+use crate::wire::{self, WireError};
 use crate::objects::{self, Object, SQ_ACCEPTED, SQ_NONE, SQ_REJECTED};
 use crate::superquadric::{self, Superquadric};
 use crate::track::{Track, Tracker};
@@ -92,6 +95,8 @@ pub struct FrameReport {
     pub tracks: u32,
     /// Tracks started this frame.
     pub new_tracks: u32,
+    /// Measurements refused by the tracks' scale gate (the track state was kept).
+    pub sq_gated: u32,
     /// Sum of the rotation changes of the tracks updated this frame, degrees (J_sq numerator).
     pub sq_jump_sum_deg: f32,
     /// Track updates this frame that had a previous state (J_sq denominator).
@@ -442,33 +447,42 @@ impl<'s> Mapper<'s> {
             let e = linalg::sym_eigen(m.covariance());
             let frame = linalg::from_columns(e.vectors[0], e.vectors[1], e.vectors[2]);
             let points = self.sq_points.get(offset..offset + n).unwrap_or(&[]);
+            let pose = checked.frame.pose;
+            let to_track = |q: &Superquadric| match pose {
+                Some(p) => Superquadric { centre: p.to_world(q.centre), rotation: linalg::mat_mul(&p.rotation, &q.rotation), ..*q },
+                None => *q,
+            };
+            let to_camera = |q: &Superquadric| match pose {
+                Some(p) => Superquadric {
+                    centre: p.to_camera(q.centre),
+                    rotation: linalg::mat_mul(&linalg::transpose(&p.rotation), &q.rotation),
+                    ..*q
+                },
+                None => *q,
+            };
+            // Warm start from the track this object would join (its state in the camera frame); the full
+            // multi-guess search runs when there is none or the refined fit is not acceptable.
+            let support_centre = linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5);
+            let track_centre = pose.map_or(support_centre, |p| p.to_world(support_centre));
+            let warm = self
+                .tracker
+                .nearest(track_centre, object.class, &params)
+                .and_then(|i| self.tracker.tracks.get(i))
+                .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), object.bbox_min, object.bbox_max, &params))
+                .filter(|f| f.accepted);
             state = SQ_REJECTED;
-            if let Some(fit) = superquadric::fit(points, &frame, object.bbox_min, object.bbox_max, &params) {
+            let fit = warm.or_else(|| superquadric::fit(points, &frame, object.bbox_min, object.bbox_max, &params));
+            if let Some(fit) = fit {
                 error = fit.error;
                 if fit.accepted {
                     state = SQ_ACCEPTED;
-                    let pose = checked.frame.pose;
-                    let to_track = |q: &Superquadric| match pose {
-                        Some(p) => Superquadric {
-                            centre: p.to_world(q.centre),
-                            rotation: linalg::mat_mul(&p.rotation, &q.rotation),
-                            ..*q
-                        },
-                        None => *q,
-                    };
-                    let to_camera = |q: &Superquadric| match pose {
-                        Some(p) => Superquadric {
-                            centre: p.to_camera(q.centre),
-                            rotation: linalg::mat_mul(&linalg::transpose(&p.rotation), &q.rotation),
-                            ..*q
-                        },
-                        None => *q,
-                    };
                     let updated = self.tracker.update(&to_track(&fit.sq), object.class, &params, params.variant.aligns());
                     sq = to_camera(&updated.sq);
                     track = updated.index.and_then(|i| self.tracker.tracks.get(i)).map_or(0, |t| t.id);
                     if updated.new {
                         self.report.new_tracks += 1;
+                    } else if updated.gated {
+                        self.report.sq_gated += 1;
                     } else if updated.index.is_some() {
                         self.report.sq_jump_sum_deg += updated.jump_deg;
                         self.report.sq_jumps += 1;
@@ -555,6 +569,45 @@ impl<'s> Mapper<'s> {
     /// Semantic objects of the last frame.
     pub fn objects(&self) -> &[Object] {
         self.objects.as_slice()
+    }
+
+    /// Calls `f` with every primitive of the last frame's map: the bounded planes, the objects' accepted
+    /// superquadrics, then the GMM primitives, in pool order.
+    pub fn for_each_primitive(&self, mut f: impl FnMut(&Primitive<'_>)) {
+        let half = (PLANE_GRID / 2) as i16;
+        for p in self.planes.as_slice() {
+            f(&Primitive::Plane(MapPlane {
+                centroid: p.centroid,
+                rotation: linalg::from_columns(p.e1, p.e2, p.normal),
+                sigmas: p.sigmas,
+                eigen_ratio: p.eigen_ratio,
+                colour: p.colour,
+                cluster: p.cluster,
+                g_p: self.params.g_p,
+                cells: CellBits { a0: -half, b0: -half, width: PLANE_GRID as u16, height: PLANE_GRID as u16, bits: &p.cells },
+            }));
+        }
+        for o in self.objects.as_slice().iter().filter(|o| o.sq_state == SQ_ACCEPTED) {
+            f(&Primitive::Sq(MapSq { sq: o.sq, instance: o.instance, class: o.class, score: o.score, track: o.track }));
+        }
+        for g in self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)) {
+            f(&Primitive::Gmm(MapGmm {
+                mean: g.mean,
+                rotation: linalg::from_columns(g.axes[0], g.axes[1], g.axes[2]),
+                sigmas: g.sigmas(),
+                count: g.count,
+                colour: g.colour,
+                instance: g.instance,
+                class: g.class,
+                score: g.score,
+                support_ratio: g.support_ratio,
+            }));
+        }
+    }
+
+    /// Encodes the last frame's map into `buf` in the wire format; returns the bytes written.
+    pub fn encode_map(&self, buf: &mut [u8]) -> Result<usize, WireError> {
+        wire::encode(buf, self.frames, |sink| self.for_each_primitive(|p| sink(p)))
     }
 
     /// Superquadric tracks after the last frame.

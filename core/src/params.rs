@@ -6,7 +6,8 @@ use crate::error::ParamError;
 
 /// Which method the mapper runs (SPEC §3): one switch each, same code path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize), serde(rename_all = "lowercase"))]
+#[derive(serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Variant {
     /// M2-SMap as published.
     Full,
@@ -73,7 +74,8 @@ impl Variant {
 
 /// The mapping parameters Θ. `Params::default()` is the paper's setting.
 #[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize), serde(default, deny_unknown_fields))]
+#[derive(serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Params {
     /// Method variant (SPEC §3).
     pub variant: Variant,
@@ -193,6 +195,9 @@ pub struct Params {
     /// A track not updated for more than this many frames is retired (open in the paper; 10 frames keeps an
     /// object through short occlusions and mask dropouts).
     pub track_max_missed: u32,
+    /// A measurement whose half-axes differ from its track's by more than this factor leaves the track
+    /// unchanged (outlier gate; open in the paper).
+    pub track_scale_gate: f32,
 }
 
 impl Default for Params {
@@ -241,6 +246,7 @@ impl Default for Params {
             alpha_r: 0.35,
             alpha_s: 0.35,
             track_max_missed: 10,
+            track_scale_gate: 1.5,
         }
     }
 }
@@ -303,6 +309,7 @@ impl Params {
         check(unit(self.alpha_c), "alpha_c")?;
         check(unit(self.alpha_r), "alpha_r")?;
         check(unit(self.alpha_s), "alpha_s")?;
+        check(self.track_scale_gate.is_finite() && self.track_scale_gate >= 1.0, "track_scale_gate")?;
         Ok(())
     }
 }

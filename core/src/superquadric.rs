@@ -445,18 +445,46 @@ pub fn fit(points: &[Vec3], pca: &Mat3, bbox_min: Vec3, bbox_max: Vec3, params: 
         }
     }
     let (_, mut best) = best?;
+    best.accepted = is_acceptable(&best, bbox_min, bbox_max, params);
+    Some(best)
+}
+
+/// Levenberg–Marquardt from a given superquadric only (a warm start, e.g. the object's track state), with the
+/// same objective, iteration budget and acceptance test as [`fit`].
+pub fn refine(points: &[Vec3], start: &Superquadric, bbox_min: Vec3, bbox_max: Vec3, params: &Params) -> Option<Fit> {
+    if points.len() < SQ_PARAMS {
+        return None;
+    }
+    let mut theta = [0.0; SQ_PARAMS];
+    theta[..3].copy_from_slice(&start.scales);
+    theta[3..5].copy_from_slice(&start.eps);
+    theta[5..8].copy_from_slice(&start.centre);
+    clamp(&mut theta);
+    let mut run = Run {
+        base: start.rotation,
+        theta,
+        cost: cost(&model(&theta, &start.rotation), points, params.sq_scale_prior),
+        lambda: 1.0,
+        iterations: 0,
+        converged: false,
+    };
+    levenberg_marquardt(points, &mut run, params.lm_max_iters, params);
+    let sq = model(&run.theta, &run.base);
+    let mut fit = Fit { sq, error: sq.error(points), iterations: run.iterations, accepted: false };
+    fit.accepted = is_acceptable(&fit, bbox_min, bbox_max, params);
+    Some(fit)
+}
+
+/// The acceptance test: E_sq below `sq_max_error`, finite and within bounds, every half-axis at most 1.5 × half
+/// the support box's diagonal, and the centre inside the support box grown by half its diagonal.
+fn is_acceptable(fit: &Fit, bbox_min: Vec3, bbox_max: Vec3, params: &Params) -> bool {
     let half_diag = 0.5 * linalg::norm(linalg::sub(bbox_max, bbox_min));
     let grow = [half_diag; 3];
     let (lo, hi) = (linalg::sub(bbox_min, grow), linalg::add(bbox_max, grow));
     let centred = (0..3).all(|k| {
-        let c = best.sq.centre.get(k).copied().unwrap_or(f32::NAN);
+        let c = fit.sq.centre.get(k).copied().unwrap_or(f32::NAN);
         c >= lo.get(k).copied().unwrap_or(0.0) && c <= hi.get(k).copied().unwrap_or(0.0)
     });
-    let sized = best.sq.scales.iter().all(|&a| a <= 1.5 * half_diag.max(MIN_SCALE));
-    best.accepted = best.error.is_finite()
-        && best.error < params.sq_max_error
-        && best.sq.is_within_bounds()
-        && centred
-        && sized;
-    Some(best)
+    let sized = fit.sq.scales.iter().all(|&a| a <= 1.5 * half_diag.max(MIN_SCALE));
+    fit.error.is_finite() && fit.error < params.sq_max_error && fit.sq.is_within_bounds() && centred && sized
 }

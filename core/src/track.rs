@@ -7,7 +7,10 @@
 //! the 8 proper pairs (R̂·P·D, Pᵀ·ŝ) of an x-y swap P and axis sign flips D, chosen by equation 17 with
 //! β = 1 / mean(s_{t−1})², which makes the scale term unit-free), then smoothed: centre EMA α_c, rotation SLERP
 //! α_R along the shortest path, half-axes and exponents EMA α_s (equation 18). The `wsqa` variant skips the
-//! alignment. A track not updated for `track_max_missed` frames is retired.
+//! alignment. A measurement whose aligned half-axes differ from the track's by more than a factor
+//! `track_scale_gate` is an outlier fit: the track keeps its state (an m2smap decision; the cabinet sequence has
+//! one such fit, a half-axis of 0.97 m against 0.44 m). A track not updated for `track_max_missed` frames is
+//! retired.
 
 use bytemuck::Zeroable;
 
@@ -133,6 +136,19 @@ pub struct Updated {
     pub jump_deg: f32,
     /// The smoothed superquadric (tracking frame).
     pub sq: Superquadric,
+    /// Whether the measurement was refused by the scale gate (the track's state is returned unchanged).
+    pub gated: bool,
+}
+
+/// Whether the sorted half-axes of the measurement are each within a factor `gate` of the track's (sorted, so
+/// the gate judges the shape and not the axis labelling, with or without alignment).
+fn within_scale_gate(track: &Superquadric, measured: &Superquadric, gate: f32) -> bool {
+    let sorted = |mut s: Vec3| {
+        s.sort_unstable_by(f32::total_cmp);
+        s
+    };
+    let (a, b) = (sorted(track.scales), sorted(measured.scales));
+    a.iter().zip(&b).all(|(&x, &y)| x.max(y) <= gate * x.min(y))
 }
 
 impl<'a> Tracker<'a> {
@@ -162,29 +178,40 @@ impl<'a> Tracker<'a> {
         }
     }
 
-    /// Associates, aligns and smooths one measurement (`sq` in the tracking frame, label `class`).
-    pub fn update(&mut self, sq: &Superquadric, class: u16, params: &Params, align_equivalents: bool) -> Updated {
-        let frame = self.frame;
+    /// Equations 14–15: the nearest track of label `class` within `d_max` of `centre` that has not been
+    /// updated in this frame.
+    pub fn nearest(&self, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
         let mut best: Option<(f32, usize)> = None;
         for (i, t) in self.tracks.as_slice().iter().enumerate() {
-            if t.class != class || t.last_frame == frame {
+            if t.class != class || t.last_frame == self.frame {
                 continue;
             }
-            let d = linalg::norm(linalg::sub(t.sq.centre, sq.centre));
+            let d = linalg::norm(linalg::sub(t.sq.centre, centre));
             if d <= params.d_max && best.is_none_or(|(bd, _)| d < bd) {
                 best = Some((d, i));
             }
         }
-        if let Some((_, i)) = best {
+        best.map(|(_, i)| i)
+    }
+
+    /// Associates, aligns and smooths one measurement (`sq` in the tracking frame, label `class`).
+    pub fn update(&mut self, sq: &Superquadric, class: u16, params: &Params, align_equivalents: bool) -> Updated {
+        let frame = self.frame;
+        if let Some(i) = self.nearest(sq.centre, class, params) {
             if let Some(t) = self.tracks.get_mut(i) {
                 let aligned = if align_equivalents { align(&t.sq, sq) } else { *sq };
+                if !within_scale_gate(&t.sq, &aligned, params.track_scale_gate) {
+                    // An outlier shape (a bad fit): the track keeps its state and stays alive.
+                    t.last_frame = frame;
+                    return Updated { index: Some(i), new: false, jump_deg: 0.0, sq: t.sq, gated: true };
+                }
                 let smoothed = smooth(&t.sq, &aligned, params);
                 let jump = linalg::rotation_angle_between(&t.sq.rotation, &smoothed.rotation);
                 t.sq = smoothed;
                 t.last_frame = frame;
                 t.updates += 1;
                 t.last_jump_deg = jump.to_degrees();
-                return Updated { index: Some(i), new: false, jump_deg: t.last_jump_deg, sq: smoothed };
+                return Updated { index: Some(i), new: false, jump_deg: t.last_jump_deg, sq: smoothed, gated: false };
             }
         }
         let track = Track { sq: *sq, id: self.next_id, class, last_frame: frame, updates: 1, last_jump_deg: 0.0 };
@@ -192,7 +219,7 @@ impl<'a> Tracker<'a> {
         if index.is_some() {
             self.next_id = self.next_id.wrapping_add(1);
         }
-        Updated { index, new: index.is_some(), jump_deg: 0.0, sq: *sq }
+        Updated { index, new: index.is_some(), jump_deg: 0.0, sq: *sq, gated: false }
     }
 }
 

@@ -98,7 +98,8 @@ fn execute(cli: Cli) -> Result<()> {
             let s = run(&opts)?;
             println!(
                 "{} frames ({}, {} profile): {:.0} points, {:.0} voxels, {:.1} supervoxels, {:.1} Gaussians, \
-                 {:.1} clusters, {:.2} planes, {:.2} objects per frame; R_c {:.2}, N_adh {:.3}; \
+                 {:.1} clusters, {:.2} planes, {:.2} SQs, {:.1} GMMs per frame; {:.0} B/frame ({:.1} B/primitive); \
+                 R_c {:.2}, N_adh {:.3}, J_sq {:.1} deg; \
                  median {:.2} ms ({:.0} Hz); {} overflow events -> {}",
                 s.frames,
                 s.variant,
@@ -109,9 +110,13 @@ fn execute(cli: Cli) -> Result<()> {
                 s.gaussians,
                 s.clusters,
                 s.primitives.plane.unwrap_or(0.0),
-                s.objects,
+                s.primitives.sq.unwrap_or(0.0),
+                s.primitives.gmm.unwrap_or(0.0),
+                s.payload_bytes.unwrap_or(0.0),
+                s.bytes_per_primitive.unwrap_or(0.0),
                 s.r_c.unwrap_or(0.0),
                 s.n_adh.unwrap_or(0.0),
+                s.j_sq_deg.unwrap_or(0.0),
                 s.ms_per_frame_median,
                 s.hz,
                 s.overflow_events,

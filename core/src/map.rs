@@ -1,0 +1,191 @@
+//! The frame map: bounded planes, object superquadrics and GMM primitives (paper §V) with their semantic
+//! attributes, and the deterministic reconstruction samples of SPEC §4 used by evaluation and rendering.
+
+use crate::linalg::{self, Mat3, Vec3};
+use crate::superquadric::Superquadric;
+
+/// A bitmap of occupied plane cells: `width × height` cells from cell (a0, b0), row-major, bit `i % 8` of byte
+/// `i / 8` for cell index i.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellBits<'a> {
+    /// Cell index along e1 of the first column.
+    pub a0: i16,
+    /// Cell index along e2 of the first row.
+    pub b0: i16,
+    /// Columns.
+    pub width: u16,
+    /// Rows.
+    pub height: u16,
+    /// The bits, at least `ceil(width × height / 8)` bytes.
+    pub bits: &'a [u8],
+}
+
+impl CellBits<'_> {
+    /// Whether column `i`, row `j` is occupied.
+    pub fn is_set(&self, i: usize, j: usize) -> bool {
+        let k = j * self.width as usize + i;
+        i < self.width as usize && self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1)
+    }
+
+    /// Occupied cells.
+    pub fn count(&self) -> usize {
+        (0..self.height as usize).map(|j| (0..self.width as usize).filter(|&i| self.is_set(i, j)).count()).sum()
+    }
+
+    /// The smallest (i0, j0, i1, j1) box holding every occupied cell, `None` when empty.
+    pub fn occupied_box(&self) -> Option<(usize, usize, usize, usize)> {
+        let mut b: Option<(usize, usize, usize, usize)> = None;
+        for j in 0..self.height as usize {
+            for i in 0..self.width as usize {
+                if self.is_set(i, j) {
+                    b = Some(match b {
+                        None => (i, j, i, j),
+                        Some((i0, j0, i1, j1)) => (i0.min(i), j0.min(j), i1.max(i), j1.max(j)),
+                    });
+                }
+            }
+        }
+        b
+    }
+}
+
+/// A bounded plane of the map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapPlane<'a> {
+    /// Centroid, metres.
+    pub centroid: Vec3,
+    /// Columns e1, e2 and the normal n.
+    pub rotation: Mat3,
+    /// Principal scales σ0, σ1 and thickness σ2, metres.
+    pub sigmas: Vec3,
+    /// λ2/λ0.
+    pub eigen_ratio: f32,
+    /// Colour.
+    pub colour: [u8; 3],
+    /// Source fused cluster.
+    pub cluster: u16,
+    /// Cell size g_p, metres.
+    pub g_p: f32,
+    /// Occupied cells.
+    pub cells: CellBits<'a>,
+}
+
+/// An object superquadric of the map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapSq {
+    /// The shape and pose (camera frame).
+    pub sq: Superquadric,
+    /// Instance id.
+    pub instance: u16,
+    /// Category label.
+    pub class: u16,
+    /// Detection confidence.
+    pub score: f32,
+    /// Track id.
+    pub track: u16,
+}
+
+/// A GMM primitive of the map (paper §V-C): μ, Σ = R·diag(d²)·Rᵀ, N, colour and (a, ℓ, s, ρ).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapGmm {
+    /// Mean μ, metres.
+    pub mean: Vec3,
+    /// Eigenvector rotation R (columns).
+    pub rotation: Mat3,
+    /// Principal scales d (square roots of the eigenvalues), metres.
+    pub sigmas: Vec3,
+    /// Support points N.
+    pub count: u32,
+    /// Colour.
+    pub colour: [u8; 3],
+    /// Instance id a (0: none).
+    pub instance: u16,
+    /// Category label ℓ.
+    pub class: u16,
+    /// Confidence s.
+    pub score: f32,
+    /// Mask support ratio ρ.
+    pub support_ratio: f32,
+}
+
+/// One primitive of the map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Primitive<'a> {
+    /// A bounded plane.
+    Plane(MapPlane<'a>),
+    /// An object superquadric.
+    Sq(MapSq),
+    /// A Gaussian.
+    Gmm(MapGmm),
+}
+
+/// Spacing of superquadric surface samples, metres (SPEC §4).
+pub const SQ_SAMPLE_SPACING: f32 = 0.03;
+/// Most samples of one Gaussian.
+pub const GMM_MAX_SAMPLES: u32 = 60;
+
+impl MapPlane<'_> {
+    /// One point per occupied cell, at its centre (equation 10).
+    pub fn for_each_sample(&self, mut f: impl FnMut(Vec3)) {
+        let (e1, e2) = (linalg::column(&self.rotation, 0), linalg::column(&self.rotation, 1));
+        for j in 0..self.cells.height as usize {
+            for i in 0..self.cells.width as usize {
+                if self.cells.is_set(i, j) {
+                    let u = (self.cells.a0 as f32 + i as f32 + 0.5) * self.g_p;
+                    let v = (self.cells.b0 as f32 + j as f32 + 0.5) * self.g_p;
+                    f(linalg::add(self.centroid, linalg::add(linalg::scale(e1, u), linalg::scale(e2, v))));
+                }
+            }
+        }
+    }
+}
+
+impl MapSq {
+    /// Surface points on a parametric (η, ω) grid about [`SQ_SAMPLE_SPACING`] apart, kept where the outward
+    /// normal faces the camera at the origin (a superquadric with ε ≤ 2 is convex: this is its visible side).
+    pub fn for_each_sample(&self, mut f: impl FnMut(Vec3)) {
+        let a = self.sq.scales[0].max(self.sq.scales[1]).max(self.sq.scales[2]);
+        let steps = |length: f32, lo: u32, hi: u32| (libm::ceilf(length / SQ_SAMPLE_SPACING) as u32).clamp(lo, hi);
+        let n_eta = steps(core::f32::consts::PI * a, 6, 64);
+        let n_omega = steps(2.0 * core::f32::consts::PI * a, 8, 128);
+        for i in 0..=n_eta {
+            let eta = -core::f32::consts::FRAC_PI_2 + core::f32::consts::PI * i as f32 / n_eta as f32;
+            for j in 0..n_omega {
+                let omega = -core::f32::consts::PI + 2.0 * core::f32::consts::PI * j as f32 / n_omega as f32;
+                let (p, n) = self.sq.surface(eta, omega);
+                if linalg::dot(n, p) < 0.0 {
+                    f(p);
+                }
+            }
+        }
+    }
+}
+
+impl MapGmm {
+    /// Deterministic points along the three eigen-axes within Mahalanobis distance 2, about one per 30 support
+    /// points (at least 2 per axis, at most [`GMM_MAX_SAMPLES`] in all), plus the mean.
+    pub fn for_each_sample(&self, mut f: impl FnMut(Vec3)) {
+        f(self.mean);
+        let per_axis = (self.count / 90).clamp(2, GMM_MAX_SAMPLES / 3);
+        for k in 0..3 {
+            let axis = linalg::column(&self.rotation, k);
+            let sigma = self.sigmas.get(k).copied().unwrap_or(0.0);
+            for s in 0..per_axis {
+                // t in [−2, 2] without 0 (the mean is already out): ±2·(s + 1)/per_axis alternating sides.
+                let t = 2.0 * (s / 2 + 1) as f32 / per_axis.div_ceil(2) as f32 * if s % 2 == 0 { 1.0 } else { -1.0 };
+                f(linalg::add(self.mean, linalg::scale(axis, t * sigma)));
+            }
+        }
+    }
+}
+
+impl Primitive<'_> {
+    /// The reconstruction samples of this primitive (SPEC §4), camera frame, metres.
+    pub fn for_each_sample(&self, f: impl FnMut(Vec3)) {
+        match self {
+            Primitive::Plane(p) => p.for_each_sample(f),
+            Primitive::Sq(s) => s.for_each_sample(f),
+            Primitive::Gmm(g) => g.for_each_sample(f),
+        }
+    }
+}

@@ -1,0 +1,412 @@
+//! The compact map wire format: a versioned postcard encoding of a frame map into a caller-provided buffer,
+//! and a decoder that validates everything before it hands out a single primitive.
+//!
+//! Layout: `Header` (magic "M2", version, frame number, primitive counts), then the planes, superquadrics and
+//! Gaussians in that order, each a postcard struct, then a CRC-32 (IEEE, little-endian) of all preceding bytes.
+//!
+//! Quantisation (units and worst-case error):
+//! - positions (centroids, centres, means): millimetres, i32 varint — ±0.5 mm;
+//! - rotations: the quaternion with w ≥ 0, its x, y, z as i16 / 32767 — ≤ 0.004° (0.13 mm at 2 m);
+//! - scales and σ: 0.1 mm units, u16 — ±0.05 mm, up to 6.55 m;
+//! - shape exponents: u16 over [0.1, 1.9] — ±0.000014 (box-like surfaces, ε ≈ 0.1, are that sensitive);
+//!   scores and support ratios: u8 over [0, 1] — ±0.002;
+//! - λ2/λ0: u16 over [0, 1]; g_p: 0.1 mm units; plane cells: their occupied bounding box as a bitmap.
+
+use serde::{Deserialize, Serialize};
+
+use crate::linalg::{self, Mat3, Vec3};
+use crate::map::{CellBits, MapGmm, MapPlane, MapSq, Primitive};
+use crate::superquadric::{Superquadric, EPS_RANGE, MIN_SCALE};
+
+/// First two bytes of every map.
+pub const MAGIC: [u8; 2] = *b"M2";
+/// The format version this code writes and reads.
+pub const VERSION: u8 = 1;
+
+/// Why a map could not be encoded or decoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WireError {
+    /// The output buffer is too small.
+    BufferTooSmall,
+    /// The input ends before the map does.
+    Truncated,
+    /// The CRC-32 does not match: corrupted bytes.
+    BadChecksum,
+    /// Not a map (wrong magic bytes).
+    BadMagic,
+    /// A map of another format version.
+    WrongVersion(u8),
+    /// A field could not be parsed.
+    Malformed,
+    /// A field holds an impossible value; the name says which.
+    BadValue(&'static str),
+    /// Bytes follow the last primitive.
+    TrailingBytes,
+    /// More primitives of one kind than the header can count (65 535).
+    TooManyPrimitives,
+}
+
+impl core::fmt::Display for WireError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            WireError::BufferTooSmall => write!(f, "output buffer too small"),
+            WireError::Truncated => write!(f, "map is truncated"),
+            WireError::BadChecksum => write!(f, "map checksum mismatch"),
+            WireError::BadMagic => write!(f, "not an m2smap map"),
+            WireError::WrongVersion(v) => write!(f, "map format version {v}, this reader knows {VERSION}"),
+            WireError::Malformed => write!(f, "malformed map field"),
+            WireError::BadValue(name) => write!(f, "map field `{name}` out of range"),
+            WireError::TrailingBytes => write!(f, "bytes after the last primitive"),
+            WireError::TooManyPrimitives => write!(f, "more than 65535 primitives of one kind"),
+        }
+    }
+}
+
+/// The map header.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Header {
+    /// [`MAGIC`].
+    pub magic: [u8; 2],
+    /// [`VERSION`].
+    pub version: u8,
+    /// Frame number.
+    pub frame: u32,
+    /// Planes that follow.
+    pub planes: u16,
+    /// Superquadrics that follow.
+    pub sqs: u16,
+    /// Gaussians that follow.
+    pub gmms: u16,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct WirePlane<'a> {
+    centroid: [i32; 3],
+    rotation: [u8; 6],
+    sigmas: [u16; 3],
+    ratio: u16,
+    colour: [u8; 3],
+    cluster: u16,
+    g_p: u16,
+    a0: i16,
+    b0: i16,
+    width: u16,
+    height: u16,
+    #[serde(borrow)]
+    bits: &'a [u8],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct WireSq {
+    centre: [i32; 3],
+    rotation: [u8; 6],
+    scales: [u16; 3],
+    eps: [u16; 2],
+    instance: u16,
+    class: u16,
+    score: u8,
+    track: u16,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct WireGmm {
+    mean: [i32; 3],
+    rotation: [u8; 6],
+    sigmas: [u16; 3],
+    count: u32,
+    colour: [u8; 3],
+    instance: u16,
+    class: u16,
+    score: u8,
+    ratio: u8,
+}
+
+/// CRC-32 (IEEE 802.3, reflected, init and final xor 0xFFFFFFFF), bitwise.
+pub fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            let mask = (crc & 1).wrapping_neg();
+            crc = (crc >> 1) ^ (0xEDB8_8320 & mask);
+        }
+    }
+    !crc
+}
+
+fn mm(x: f32) -> i32 {
+    libm::roundf((x * 1000.0).clamp(-2.0e9, 2.0e9)) as i32
+}
+
+fn from_mm(v: [i32; 3]) -> Vec3 {
+    [v[0] as f32 / 1000.0, v[1] as f32 / 1000.0, v[2] as f32 / 1000.0]
+}
+
+fn tenth_mm(x: f32) -> u16 {
+    libm::roundf((x * 10_000.0).clamp(0.0, 65_535.0)) as u16
+}
+
+fn from_tenth_mm(v: [u16; 3]) -> Vec3 {
+    [v[0] as f32 / 10_000.0, v[1] as f32 / 10_000.0, v[2] as f32 / 10_000.0]
+}
+
+fn unit_u8(x: f32) -> u8 {
+    libm::roundf(x.clamp(0.0, 1.0) * 255.0) as u8
+}
+
+fn quantise_rotation(r: &Mat3) -> [u8; 6] {
+    let q = linalg::quat_from_matrix(r);
+    let mut out = [0u8; 6];
+    for (chunk, c) in out.chunks_exact_mut(2).zip(q) {
+        let v = libm::roundf(c.clamp(-1.0, 1.0) * 32767.0) as i16;
+        chunk.copy_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+fn rotation_of(bytes: [u8; 6]) -> Result<Mat3, WireError> {
+    let [x0, x1, y0, y1, z0, z1] = bytes;
+    let c = |lo: u8, hi: u8| i16::from_le_bytes([lo, hi]) as f32 / 32767.0;
+    let (x, y, z) = (c(x0, x1), c(y0, y1), c(z0, z1));
+    let s = x * x + y * y + z * z;
+    if s > 1.0 + 1e-3 {
+        return Err(WireError::BadValue("rotation"));
+    }
+    Ok(linalg::matrix_from_quat([x, y, z, libm::sqrtf((1.0 - s).max(0.0))]))
+}
+
+/// Writes the map of frame `frame` into `buf`: `primitives` is called with a sink and must feed it every
+/// primitive (it is called twice: once to count, once to write). Returns the bytes written.
+pub fn encode(
+    buf: &mut [u8],
+    frame: u32,
+    mut primitives: impl FnMut(&mut dyn FnMut(&Primitive<'_>)),
+) -> Result<usize, WireError> {
+    let (mut planes, mut sqs, mut gmms) = (0usize, 0usize, 0usize);
+    primitives(&mut |p| match p {
+        Primitive::Plane(_) => planes += 1,
+        Primitive::Sq(_) => sqs += 1,
+        Primitive::Gmm(_) => gmms += 1,
+    });
+    let count = |n: usize| u16::try_from(n).map_err(|_| WireError::TooManyPrimitives);
+    let header = Header { magic: MAGIC, version: VERSION, frame, planes: count(planes)?, sqs: count(sqs)?, gmms: count(gmms)? };
+    let mut used = postcard::to_slice(&header, buf).map_err(|_| WireError::BufferTooSmall)?.len();
+    // Written in kind order: planes, then superquadrics, then Gaussians.
+    for kind in 0..3 {
+        let mut result = Ok(());
+        primitives(&mut |p| {
+            if result.is_err() {
+                return;
+            }
+            let Some(rest) = buf.get_mut(used..) else {
+                result = Err(WireError::BufferTooSmall);
+                return;
+            };
+            let written = match (kind, p) {
+                (0, Primitive::Plane(pl)) => write_plane(pl, rest),
+                (1, Primitive::Sq(s)) => write_sq(s, rest),
+                (2, Primitive::Gmm(g)) => write_gmm(g, rest),
+                _ => Ok(0),
+            };
+            match written {
+                Ok(n) => used += n,
+                Err(e) => result = Err(e),
+            }
+        });
+        result?;
+    }
+    let crc = crc32(buf.get(..used).ok_or(WireError::BufferTooSmall)?);
+    let tail = buf.get_mut(used..used + 4).ok_or(WireError::BufferTooSmall)?;
+    tail.copy_from_slice(&crc.to_le_bytes());
+    Ok(used + 4)
+}
+
+fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
+    // Crop the cells to their occupied box and repack the bits row by row.
+    let mut bits = [0u8; MAX_PLANE_BITS];
+    let (a0, b0, width, height) = match p.cells.occupied_box() {
+        Some((i0, j0, i1, j1)) => {
+            let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
+            if w * h > MAX_PLANE_BITS * 8 {
+                return Err(WireError::BadValue("plane cells"));
+            }
+            for j in 0..h {
+                for i in 0..w {
+                    if p.cells.is_set(i0 + i, j0 + j) {
+                        let k = j * w + i;
+                        if let Some(b) = bits.get_mut(k / 8) {
+                            *b |= 1 << (k % 8);
+                        }
+                    }
+                }
+            }
+            (p.cells.a0 + i0 as i16, p.cells.b0 + j0 as i16, w as u16, h as u16)
+        }
+        None => (0, 0, 0, 0),
+    };
+    let n_bytes = (width as usize * height as usize).div_ceil(8);
+    let wire = WirePlane {
+        centroid: p.centroid.map(mm),
+        rotation: quantise_rotation(&p.rotation),
+        sigmas: p.sigmas.map(tenth_mm),
+        ratio: libm::roundf(p.eigen_ratio.clamp(0.0, 1.0) * 65535.0) as u16,
+        colour: p.colour,
+        cluster: p.cluster,
+        g_p: tenth_mm(p.g_p),
+        a0,
+        b0,
+        width,
+        height,
+        bits: bits.get(..n_bytes).unwrap_or(&[]),
+    };
+    postcard::to_slice(&wire, out).map(|s| s.len()).map_err(|_| WireError::BufferTooSmall)
+}
+
+fn write_sq(s: &MapSq, out: &mut [u8]) -> Result<usize, WireError> {
+    let eps = |e: f32| libm::roundf(((e - EPS_RANGE.0) / (EPS_RANGE.1 - EPS_RANGE.0)).clamp(0.0, 1.0) * 65535.0) as u16;
+    let wire = WireSq {
+        centre: s.sq.centre.map(mm),
+        rotation: quantise_rotation(&s.sq.rotation),
+        scales: s.sq.scales.map(tenth_mm),
+        eps: [eps(s.sq.eps[0]), eps(s.sq.eps[1])],
+        instance: s.instance,
+        class: s.class,
+        score: unit_u8(s.score),
+        track: s.track,
+    };
+    postcard::to_slice(&wire, out).map(|s| s.len()).map_err(|_| WireError::BufferTooSmall)
+}
+
+fn write_gmm(g: &MapGmm, out: &mut [u8]) -> Result<usize, WireError> {
+    let wire = WireGmm {
+        mean: g.mean.map(mm),
+        rotation: quantise_rotation(&g.rotation),
+        sigmas: g.sigmas.map(tenth_mm),
+        count: g.count,
+        colour: g.colour,
+        instance: g.instance,
+        class: g.class,
+        score: unit_u8(g.score),
+        ratio: unit_u8(g.support_ratio),
+    };
+    postcard::to_slice(&wire, out).map(|s| s.len()).map_err(|_| WireError::BufferTooSmall)
+}
+
+/// Largest cropped plane bitmap, bytes (the whole 80 × 80 grid).
+pub const MAX_PLANE_BITS: usize = crate::plane::PLANE_GRID_BYTES;
+
+fn take<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<(T, &'a [u8]), WireError> {
+    postcard::take_from_bytes(bytes).map_err(|e| match e {
+        postcard::Error::DeserializeUnexpectedEnd => WireError::Truncated,
+        _ => WireError::Malformed,
+    })
+}
+
+fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
+    if w.bits.len() != (w.width as usize * w.height as usize).div_ceil(8) {
+        return Err(WireError::BadValue("plane cells"));
+    }
+    if w.g_p == 0 {
+        return Err(WireError::BadValue("g_p"));
+    }
+    Ok(MapPlane {
+        centroid: from_mm(w.centroid),
+        rotation: rotation_of(w.rotation)?,
+        sigmas: from_tenth_mm(w.sigmas),
+        eigen_ratio: w.ratio as f32 / 65535.0,
+        colour: w.colour,
+        cluster: w.cluster,
+        g_p: w.g_p as f32 / 10_000.0,
+        cells: CellBits { a0: w.a0, b0: w.b0, width: w.width, height: w.height, bits: w.bits },
+    })
+}
+
+fn sq_of(w: WireSq) -> Result<MapSq, WireError> {
+    let scales = from_tenth_mm(w.scales);
+    if scales.iter().any(|&a| a < MIN_SCALE - 1e-4) {
+        return Err(WireError::BadValue("sq scales"));
+    }
+    let eps = |e: u16| EPS_RANGE.0 + (EPS_RANGE.1 - EPS_RANGE.0) * e as f32 / 65535.0;
+    Ok(MapSq {
+        sq: Superquadric { scales, eps: [eps(w.eps[0]), eps(w.eps[1])], centre: from_mm(w.centre), rotation: rotation_of(w.rotation)? },
+        instance: w.instance,
+        class: w.class,
+        score: w.score as f32 / 255.0,
+        track: w.track,
+    })
+}
+
+fn gmm_of(w: WireGmm) -> Result<MapGmm, WireError> {
+    if w.count == 0 {
+        return Err(WireError::BadValue("gmm count"));
+    }
+    Ok(MapGmm {
+        mean: from_mm(w.mean),
+        rotation: rotation_of(w.rotation)?,
+        sigmas: from_tenth_mm(w.sigmas),
+        count: w.count,
+        colour: w.colour,
+        instance: w.instance,
+        class: w.class,
+        score: w.score as f32 / 255.0,
+        support_ratio: w.ratio as f32 / 255.0,
+    })
+}
+
+/// One pass over a map's primitives (`f` = `None` validates only).
+fn walk<'a>(body: &'a [u8], mut f: Option<&mut dyn FnMut(Primitive<'a>)>) -> Result<Header, WireError> {
+    let (header, mut rest): (Header, _) = take(body)?;
+    if header.magic != MAGIC {
+        return Err(WireError::BadMagic);
+    }
+    if header.version != VERSION {
+        return Err(WireError::WrongVersion(header.version));
+    }
+    for _ in 0..header.planes {
+        let (w, r): (WirePlane<'a>, _) = take(rest)?;
+        rest = r;
+        let p = plane_of(w)?;
+        if let Some(f) = f.as_mut() {
+            f(Primitive::Plane(p));
+        }
+    }
+    for _ in 0..header.sqs {
+        let (w, r): (WireSq, _) = take(rest)?;
+        rest = r;
+        let s = sq_of(w)?;
+        if let Some(f) = f.as_mut() {
+            f(Primitive::Sq(s));
+        }
+    }
+    for _ in 0..header.gmms {
+        let (w, r): (WireGmm, _) = take(rest)?;
+        rest = r;
+        let g = gmm_of(w)?;
+        if let Some(f) = f.as_mut() {
+            f(Primitive::Gmm(g));
+        }
+    }
+    if !rest.is_empty() {
+        return Err(WireError::TrailingBytes);
+    }
+    Ok(header)
+}
+
+/// Validates a whole map (checksum, header, every primitive, no trailing bytes) and only then calls `f` for
+/// each primitive in order. A map that fails anywhere yields its error and no primitive.
+pub fn decode<'a>(bytes: &'a [u8], mut f: impl FnMut(Primitive<'a>)) -> Result<Header, WireError> {
+    let n = bytes.len();
+    if n < 4 {
+        return Err(WireError::Truncated);
+    }
+    let (body, tail) = bytes.split_at(n - 4);
+    let stored = match tail {
+        [a, b, c, d] => u32::from_le_bytes([*a, *b, *c, *d]),
+        _ => return Err(WireError::Truncated),
+    };
+    if crc32(body) != stored {
+        return Err(WireError::BadChecksum);
+    }
+    walk(body, None)?;
+    walk(body, Some(&mut f))
+}
