@@ -610,6 +610,11 @@ impl<'s> Mapper<'s> {
         wire::encode(buf, self.frames, |sink| self.for_each_primitive(|p| sink(p)))
     }
 
+    /// Forgets every superquadric track (the next fits start cold).
+    pub fn reset_tracks(&mut self) {
+        self.tracker.tracks.clear();
+    }
+
     /// Superquadric tracks after the last frame.
     pub fn tracks(&self) -> &[Track] {
         self.tracker.tracks.as_slice()

@@ -13,16 +13,21 @@ use m2smap::synth::Scene;
 use m2smap_core::{HostStorage, Mapper, McuStorage, Params, Profile};
 
 const REPS: usize = 3;
-const STAGES: [&str; 6] = ["points+voxels", "supervoxels", "gaussians", "annotate", "fuse+planes+objects", "total"];
+const STAGES: [&str; 7] =
+    ["points+voxels", "supervoxels", "gaussians", "annotate", "fuse+planes+objects", "superquadrics", "total"];
 
 type Frames = Vec<(LoadedFrame, Option<FrameMasks>)>;
 
-fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &Frames) {
-    let mut mapper = Mapper::new(storage, Params::default()).expect("default parameters");
-    let mut times: [Vec<f64>; 6] = Default::default();
+fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &Frames, cold: bool) {
+    let mut times: [Vec<f64>; 7] = Default::default();
     let mut gaussians = Vec::new();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).expect("default parameters");
     for (frame, masks) in frames {
         for _ in 0..REPS {
+            if cold {
+                // No track to warm-start from: every superquadric is fitted from its 18 initial guesses.
+                mapper.reset_tracks();
+            }
             let t0 = Instant::now();
             let checked = mapper.check(frame.view(camera), masks.as_ref().map(|m| m.view())).expect("valid frame");
             mapper.stage_voxels(&checked);
@@ -34,9 +39,12 @@ fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &Fram
             mapper.stage_annotate(&checked);
             let t4 = Instant::now();
             mapper.stage_separate(&checked);
-            let report = *mapper.finish_frame();
             let t5 = Instant::now();
-            for (k, (a, b)) in [(t0, t1), (t1, t2), (t2, t3), (t3, t4), (t4, t5), (t0, t5)].into_iter().enumerate() {
+            mapper.stage_superquadrics(&checked);
+            let report = *mapper.finish_frame();
+            let t6 = Instant::now();
+            let spans = [(t0, t1), (t1, t2), (t2, t3), (t3, t4), (t4, t5), (t5, t6), (t0, t6)];
+            for (k, (a, b)) in spans.into_iter().enumerate() {
                 times[k].push((b - a).as_secs_f64() * 1e3);
             }
             gaussians.push(report.gaussians as f64);
@@ -48,7 +56,7 @@ fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &Fram
         frames.len(),
         cells.join(" | "),
         median(&gaussians),
-        1e3 / median(&times[5])
+        1e3 / median(&times[6])
     );
 }
 
@@ -69,14 +77,17 @@ fn load(name: &str, limit: usize) -> Option<(Camera, Frames)> {
 fn main() {
     println!("median ms per stage (single thread, release, {REPS} repetitions of each frame)\n");
     println!("| data (profile) | frames | {} | Gaussians | Hz |", STAGES.join(" | "));
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut host = bytemuck::zeroed_box::<HostStorage>();
     let mut mcu = bytemuck::zeroed_box::<McuStorage>();
     for (name, limit) in [("tum_fr3_cabinet", 58), ("7scenes_redkitchen", 60)] {
         match load(name, limit) {
             Some((camera, frames)) => {
-                bench(&format!("{name} (host)"), &mut *host, &camera, &frames);
-                bench(&format!("{name} (mcu)"), &mut *mcu, &camera, &frames);
+                bench(&format!("{name} (host)"), &mut *host, &camera, &frames, false);
+                bench(&format!("{name} (mcu)"), &mut *mcu, &camera, &frames, false);
+                if name == "tum_fr3_cabinet" {
+                    bench(&format!("{name} (host, cold SQ fits)"), &mut *host, &camera, &frames, true);
+                }
             }
             None => eprintln!("skipped: ../shared/data/{name} not found"),
         }
@@ -90,6 +101,6 @@ fn main() {
                 (f.frame, Some(masks))
             })
             .collect();
-        bench(&format!("synthetic {scene} (host)"), &mut *host, &s.camera, &frames);
+        bench(&format!("synthetic {scene} (host)"), &mut *host, &s.camera, &frames, false);
     }
 }
