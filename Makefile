@@ -1,9 +1,15 @@
 # m2smap — the two commands a fresh clone needs are `make demo` and `make test`.
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
 CARGO ?= cargo
 TARGET_MCU := thumbv7em-none-eabihf
 DEMO := target/demo
+SHARED := ../shared/data
+FW_FRAMES := $(CURDIR)/target/fw-frames
+FW_ELF := firmware/target/$(TARGET_MCU)/release/m2smap-firmware
+QEMU := timeout 600 qemu-system-arm -machine mps2-an500 -nographic -semihosting-config enable=on,target=native -icount shift=0
 
-.PHONY: demo test bench core-nostd budget
+.PHONY: demo test bench core-nostd budget firmware firmware-check
 
 ## Map a synthetic scene the project makes itself (no ../shared needed) and print a summary.
 demo:
@@ -13,8 +19,9 @@ demo:
 	./target/release/m2smap run $(DEMO)/tabletop --out $(DEMO)/tabletop-run-mcu --profile mcu
 	@echo "outputs: $(DEMO)/tabletop-run/summary.json and frames.jsonl"
 
-## Every test: the no_std core for the Cortex-M7 target, then the workspace tests (release: the real-data runs are fast).
-test: core-nostd
+## Every test: the no_std core for the Cortex-M7 target, the firmware under QEMU (when available), then the
+## workspace tests (release: the real-data runs are fast).
+test: core-nostd firmware-check
 	$(CARGO) test --release --workspace
 
 ## The core must build for a bare-metal Cortex-M7 target: no std, no allocator.
@@ -30,3 +37,23 @@ bench:
 ## Print the mcu memory table (paste into memory_budget.md when pools change).
 budget:
 	$(CARGO) run --release -q -p m2smap -- budget
+
+## The core in a Cortex-M7 image (mcu profile, 512 KiB RAM region) on 3 real cabinet frames under QEMU mps2-an500:
+## map bytes must equal the host's (CRC per frame), instructions per frame and stage are printed.
+firmware:
+	$(CARGO) run --release -q -p m2smap -- firmware-frames $(SHARED)/tum_fr3_cabinet --frames 3 --out $(FW_FRAMES)
+	cd firmware && M2SMAP_FRAMES=$(FW_FRAMES) $(CARGO) build --release --locked
+	arm-none-eabi-size -A $(FW_ELF) | grep -E '^\.(vector_table|text|rodata|data|bss|frames) '
+	$(QEMU) -kernel $(FW_ELF) | tee target/fw-run.txt
+	grep '^frame [0-9]* map' target/fw-run.txt | diff -u $(FW_FRAMES)/expected.txt -
+	@echo "firmware: the Cortex-M7 maps equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames)"
+
+## `make firmware` when QEMU and the shared frames are here; under CI their absence is an error.
+firmware-check:
+	@if command -v qemu-system-arm >/dev/null && command -v arm-none-eabi-size >/dev/null && [ -d $(SHARED)/tum_fr3_cabinet ]; then \
+		$(MAKE) --no-print-directory firmware; \
+	elif [ "$$CI" = "true" ]; then \
+		echo "error: CI needs qemu-system-arm, binutils-arm-none-eabi and $(SHARED) for the firmware check"; exit 1; \
+	else \
+		echo "make test: firmware check SKIPPED (needs qemu-system-arm, arm-none-eabi-size and $(SHARED)/tum_fr3_cabinet)"; \
+	fi

@@ -615,6 +615,16 @@ impl<'s> Mapper<'s> {
         self.tracker.tracks.clear();
     }
 
+    /// Streams the last frame's map through `out` using only `scratch` (≥ `wire::MAX_PRIMITIVE_BYTES`) as
+    /// buffer; returns the bytes produced.
+    pub fn encode_map_streaming(
+        &self,
+        scratch: &mut [u8],
+        out: impl FnMut(&[u8]) -> Result<(), WireError>,
+    ) -> Result<usize, WireError> {
+        wire::encode_streaming(self.frames, |sink| self.for_each_primitive(|p| sink(p)), scratch, out)
+    }
+
     /// Superquadric tracks after the last frame.
     pub fn tracks(&self) -> &[Track] {
         self.tracker.tracks.as_slice()

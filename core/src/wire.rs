@@ -123,7 +123,11 @@ struct WireGmm {
 
 /// CRC-32 (IEEE 802.3, reflected, init and final xor 0xFFFFFFFF), bitwise.
 pub fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = 0xFFFF_FFFFu32;
+    !crc32_update(0xFFFF_FFFF, bytes)
+}
+
+/// Feeds `bytes` into a running CRC-32 register (start at 0xFFFFFFFF, finish with `!`).
+pub fn crc32_update(mut crc: u32, bytes: &[u8]) -> u32 {
     for &b in bytes {
         crc ^= b as u32;
         for _ in 0..8 {
@@ -131,8 +135,11 @@ pub fn crc32(bytes: &[u8]) -> u32 {
             crc = (crc >> 1) ^ (0xEDB8_8320 & mask);
         }
     }
-    !crc
+    crc
 }
+
+/// Largest encoded primitive, bytes (a plane with a full occupancy bitmap), the scratch a streaming encode needs.
+pub const MAX_PRIMITIVE_BYTES: usize = MAX_PLANE_BITS + 96;
 
 fn mm(x: f32) -> i32 {
     libm::roundf((x * 1000.0).clamp(-2.0e9, 2.0e9)) as i32
@@ -176,11 +183,29 @@ fn rotation_of(bytes: [u8; 6]) -> Result<Mat3, WireError> {
 }
 
 /// Writes the map of frame `frame` into `buf`: `primitives` is called with a sink and must feed it every
-/// primitive (it is called twice: once to count, once to write). Returns the bytes written.
+/// primitive (it is called four times: to count, then once per kind). Returns the bytes written.
 pub fn encode(
     buf: &mut [u8],
     frame: u32,
+    primitives: impl FnMut(&mut dyn FnMut(&Primitive<'_>)),
+) -> Result<usize, WireError> {
+    let mut scratch = [0u8; MAX_PRIMITIVE_BYTES];
+    let mut used = 0usize;
+    encode_streaming(frame, primitives, &mut scratch, |bytes| {
+        let end = used + bytes.len();
+        buf.get_mut(used..end).ok_or(WireError::BufferTooSmall)?.copy_from_slice(bytes);
+        used = end;
+        Ok(())
+    })
+}
+
+/// Encodes the map of frame `frame` piece by piece through `out` (a radio link, a digest), with only
+/// `scratch` (at least [`MAX_PRIMITIVE_BYTES`]) as buffer. Returns the bytes produced.
+pub fn encode_streaming(
+    frame: u32,
     mut primitives: impl FnMut(&mut dyn FnMut(&Primitive<'_>)),
+    scratch: &mut [u8],
+    mut out: impl FnMut(&[u8]) -> Result<(), WireError>,
 ) -> Result<usize, WireError> {
     let (mut planes, mut sqs, mut gmms) = (0usize, 0usize, 0usize);
     primitives(&mut |p| match p {
@@ -190,7 +215,15 @@ pub fn encode(
     });
     let count = |n: usize| u16::try_from(n).map_err(|_| WireError::TooManyPrimitives);
     let header = Header { magic: MAGIC, version: VERSION, frame, planes: count(planes)?, sqs: count(sqs)?, gmms: count(gmms)? };
-    let mut used = postcard::to_slice(&header, buf).map_err(|_| WireError::BufferTooSmall)?.len();
+    let mut crc = 0xFFFF_FFFFu32;
+    let mut total = 0usize;
+    let mut emit = |bytes: &[u8], crc: &mut u32| -> Result<(), WireError> {
+        *crc = crc32_update(*crc, bytes);
+        total += bytes.len();
+        out(bytes)
+    };
+    let head = postcard::to_slice(&header, scratch).map_err(|_| WireError::BufferTooSmall)?;
+    emit(head, &mut crc)?;
     // Written in kind order: planes, then superquadrics, then Gaussians.
     for kind in 0..3 {
         let mut result = Ok(());
@@ -198,27 +231,18 @@ pub fn encode(
             if result.is_err() {
                 return;
             }
-            let Some(rest) = buf.get_mut(used..) else {
-                result = Err(WireError::BufferTooSmall);
-                return;
-            };
             let written = match (kind, p) {
-                (0, Primitive::Plane(pl)) => write_plane(pl, rest),
-                (1, Primitive::Sq(s)) => write_sq(s, rest),
-                (2, Primitive::Gmm(g)) => write_gmm(g, rest),
+                (0, Primitive::Plane(pl)) => write_plane(pl, scratch),
+                (1, Primitive::Sq(s)) => write_sq(s, scratch),
+                (2, Primitive::Gmm(g)) => write_gmm(g, scratch),
                 _ => Ok(0),
             };
-            match written {
-                Ok(n) => used += n,
-                Err(e) => result = Err(e),
-            }
+            result = written.and_then(|n| emit(scratch.get(..n).unwrap_or(&[]), &mut crc));
         });
         result?;
     }
-    let crc = crc32(buf.get(..used).ok_or(WireError::BufferTooSmall)?);
-    let tail = buf.get_mut(used..used + 4).ok_or(WireError::BufferTooSmall)?;
-    tail.copy_from_slice(&crc.to_le_bytes());
-    Ok(used + 4)
+    emit(&(!crc).to_le_bytes(), &mut crc)?;
+    Ok(total)
 }
 
 fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {

@@ -231,6 +231,10 @@ pub fn associate(a: &[f64], b: &[f64], max_dt: f64) -> Vec<(usize, usize)> {
 /// outside it by more than [`MAX_ASSOCIATION_DT`].
 pub fn pose_at(trajectory: &[(f64, Pose)], t: f64) -> Option<Pose> {
     let k = trajectory.partition_point(|(ts, _)| *ts < t);
+    if let Some((tb, pb)) = trajectory.get(k).filter(|(tb, _)| *tb == t) {
+        let _ = tb;
+        return Some(*pb); // an exact row: no interpolation rounding
+    }
     match (k.checked_sub(1).and_then(|i| trajectory.get(i)), trajectory.get(k)) {
         (Some((ta, pa)), Some((tb, pb))) => {
             let s = if tb > ta { (t - ta) / (tb - ta) } else { 0.0 };

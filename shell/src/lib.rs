@@ -7,6 +7,7 @@
 pub mod budget;
 pub mod dataset;
 pub mod eval;
+pub mod firmware;
 pub mod masks;
 pub mod run;
 pub mod synth;

@@ -65,6 +65,17 @@ enum Command {
     },
     /// Print the memory budget table of the mcu profile.
     Budget,
+    /// Export frames for the firmware image, with the host's map digests (expected.txt).
+    FirmwareFrames {
+        /// Dataset folder.
+        dataset: PathBuf,
+        /// Number of frames.
+        #[arg(long, default_value_t = 2)]
+        frames: usize,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -127,6 +138,12 @@ fn execute(cli: Cli) -> Result<()> {
         Command::Synth { scene, frames, seed, no_noise, out } => {
             synth::Scene::named(&scene)?.write_tum(&out, frames, seed, !no_noise)?;
             println!("wrote {frames} frames of scene {scene} to {}", out.display());
+            Ok(())
+        }
+        Command::FirmwareFrames { dataset, frames, out } => {
+            let d = m2smap::dataset::Dataset::open(&dataset, None)?;
+            m2smap::firmware::export(&d, frames, &out)?;
+            println!("wrote {frames} firmware frames and expected.txt to {}", out.display());
             Ok(())
         }
         Command::Budget => {
