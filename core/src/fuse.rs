@@ -86,6 +86,24 @@ fn union(g: &mut [Gaussian], a: usize, b: usize) -> bool {
 /// Fuses the Gaussians; afterwards `cluster` holds compact cluster ids 0..C, numbered by their lowest Gaussian,
 /// and `order[..n]` lists the Gaussians grouped by cluster (within a cluster by index).
 pub fn fuse(gaussians: &mut [Gaussian], order: &mut [u16], params: &Params) -> FuseStats {
+    let cos_theta_min = libm::cosf(params.theta_min_deg.to_radians());
+    let semantic = params.variant.semantic_fusion();
+    connect(gaussians, order, params.d_connect, |a, b| {
+        if semantic && (a.instance != b.instance || is_uncertain(a, params) || is_uncertain(b, params)) {
+            return false;
+        }
+        geometric_link(a, b, cos_theta_min, params)
+    })
+}
+
+/// Connected components of the graph whose edges are the pairs within `reach` metres along x (the sweep) for
+/// which `link` holds; ids, `cluster` fields and `order` as [`fuse`] documents.
+pub fn connect(
+    gaussians: &mut [Gaussian],
+    order: &mut [u16],
+    reach_m: f32,
+    mut link: impl FnMut(&Gaussian, &Gaussian) -> bool,
+) -> FuseStats {
     let mut stats = FuseStats::default();
     let n = gaussians.len().min(order.len());
     let Some(order) = order.get_mut(..n) else { return stats };
@@ -97,22 +115,17 @@ pub fn fuse(gaussians: &mut [Gaussian], order: &mut [u16], params: &Params) -> F
     }
     let low_x = |g: &[Gaussian], i: u16| g.get(i as usize).map_or(0.0, |x| x.bbox_min[0]);
     order.sort_unstable_by(|&a, &b| low_x(gaussians, a).total_cmp(&low_x(gaussians, b)).then(a.cmp(&b)));
-    let cos_theta_min = libm::cosf(params.theta_min_deg.to_radians());
-    let semantic = params.variant.semantic_fusion();
     for s in 0..n {
         let Some(&i) = order.get(s) else { continue };
         let Some(a) = gaussians.get(i as usize).copied() else { continue };
-        let reach = a.bbox_max[0] + params.d_connect;
+        let reach = a.bbox_max[0] + reach_m;
         for &j in order.get(s + 1..).unwrap_or(&[]) {
             let Some(b) = gaussians.get(j as usize).copied() else { continue };
             if b.bbox_min[0] > reach {
                 break;
             }
             stats.pair_tests += 1;
-            if semantic && (a.instance != b.instance || is_uncertain(&a, params) || is_uncertain(&b, params)) {
-                continue;
-            }
-            if geometric_link(&a, &b, cos_theta_min, params) {
+            if link(&a, &b) {
                 stats.links += 1;
                 union(gaussians, i as usize, j as usize);
             }

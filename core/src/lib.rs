@@ -47,6 +47,7 @@ pub mod plane;
 pub mod points;
 pub mod pool;
 pub mod profile;
+pub mod segment;
 pub mod superquadric;
 pub mod supervoxel;
 pub mod track;

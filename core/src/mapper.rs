@@ -15,7 +15,8 @@ use crate::plane::{self, Plane};
 use crate::error::ParamError;
 use crate::frame::Frame;
 use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
-use crate::masks::MaskSet;
+use crate::masks::{Instance, MaskSet};
+use crate::segment;
 use crate::params::Params;
 use crate::points::Point;
 use crate::pool::{Bounded, PoolId, PoolUsage};
@@ -85,6 +86,8 @@ pub struct FrameReport {
     pub residual_gaussians: u32,
     /// Instances ignored beyond the annotation limit.
     pub ignored_instances: u32,
+    /// Instances the geometric segmenter produced (0 when masks came from the caller).
+    pub segmented_instances: u32,
     /// Objects represented by an accepted superquadric.
     pub sqs: u32,
     /// Gaussian primitives of the map: residual Gaussians and those of objects without an accepted superquadric.
@@ -192,6 +195,50 @@ impl<'s> Mapper<'s> {
         self.stage_separate(&checked);
         self.stage_superquadrics(&checked);
         Ok(self.finish_frame())
+    }
+
+    /// Runs the whole pipeline with instance masks made by the geometric segmenter ([`crate::segment`]) from
+    /// this frame's own Gaussians: writes the id image into `ids` (one per pixel) and the instances into
+    /// `instances` (caller-owned, like file masks), then annotates with them. Returns the report and the number of
+    /// instances. On error nothing changes.
+    pub fn process_segmented(
+        &mut self,
+        frame: Frame<'_>,
+        ids: &mut [u16],
+        instances: &mut [Instance],
+        class: u16,
+    ) -> Result<(FrameReport, usize), FrameError> {
+        let checked = self.check(frame, None)?;
+        if ids.len() != frame.pixels() {
+            return Err(FrameError::Masks(crate::error::MaskError::PixelLength { expected: frame.pixels(), found: ids.len() }));
+        }
+        self.stage_voxels(&checked);
+        self.stage_supervoxels();
+        self.stage_gaussians(&checked);
+        let stats = segment::segment(
+            &checked.frame,
+            self.voxels.as_slice(),
+            self.slots,
+            self.gaussians.as_mut_slice(),
+            self.scratch,
+            &self.params,
+            ids,
+            instances,
+            class,
+        );
+        let n = stats.instances as usize;
+        let masks = MaskSet {
+            width: frame.width,
+            height: frame.height,
+            instances: instances.get(..n).unwrap_or(&[]),
+            pixels: crate::masks::MaskPixels::IdImage(ids),
+        };
+        let checked = CheckedFrame { frame, masks: Some(masks) };
+        self.stage_annotate(&checked);
+        self.stage_separate(&checked);
+        self.stage_superquadrics(&checked);
+        self.report.segmented_instances = stats.instances;
+        Ok((*self.finish_frame(), n))
     }
 
     /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks).

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{anyhow, Result};
 use clap::{Parser, Subcommand};
-use m2smap::run::{run, ProfileChoice, RunOptions};
+use m2smap::run::{run, ProfileChoice, RunOptions, Segmenter};
 use m2smap::{budget, synth};
 use m2smap_core::Variant;
 
@@ -42,8 +42,11 @@ enum Command {
         #[arg(long, value_enum, default_value = "host")]
         profile: ProfileChoice,
         /// Instance-mask folder (default: DATASET/masks when it exists).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "segmenter")]
         masks: Option<PathBuf>,
+        /// Make masks with the built-in depth-only segmenter (the default when the dataset has no masks).
+        #[arg(long, value_enum)]
+        segmenter: Option<Segmenter>,
     },
     /// Write a synthetic scene with ground truth as a TUM folder.
     Synth {
@@ -90,7 +93,7 @@ fn main() -> ExitCode {
 
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { dataset, out, variant, frames, config, camera, profile, masks } => {
+        Command::Run { dataset, out, variant, frames, config, camera, profile, masks, segmenter } => {
             let variant = match variant {
                 Some(name) => Some(Variant::from_name(&name).ok_or_else(|| anyhow!("unknown variant {name:?}"))?),
                 None => None,
@@ -104,6 +107,7 @@ fn execute(cli: Cli) -> Result<()> {
                 camera,
                 profile,
                 masks,
+                segmenter,
                 progress: std::io::stderr().is_terminal(),
             };
             let s = run(&opts)?;

@@ -13,7 +13,17 @@ use serde::Serialize;
 
 use crate::dataset::{read_depth, Dataset};
 use crate::eval;
-use crate::masks::{mask_dir, read_frame_masks, LabelTable};
+use crate::masks::{mask_dir, read_frame_masks, FrameMasks, LabelTable, Pixels};
+
+/// Instance buffer of the geometric segmenter.
+pub const SEGMENTER_INSTANCES: usize = 64;
+
+/// Where a run's instance masks come from besides files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Segmenter {
+    /// The core's depth-only segmenter (`m2smap_core::segment`).
+    Geometric,
+}
 
 /// Which capacity profile to run the core with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -43,6 +53,8 @@ pub struct RunOptions {
     pub profile: ProfileChoice,
     /// Mask folder (`--masks`); default `DATASET/masks` when present.
     pub masks: Option<PathBuf>,
+    /// `--segmenter geometric`; the default when no masks exist.
+    pub segmenter: Option<Segmenter>,
     /// Show a progress bar (on a terminal).
     pub progress: bool,
 }
@@ -90,6 +102,8 @@ pub struct FrameRecord {
     pub gaussians: u32,
     /// Instances in the frame's masks.
     pub instances: usize,
+    /// The segmenter that made the masks, when they did not come from files.
+    pub segmenter: Option<&'static str>,
     /// Gaussians annotated with an instance.
     pub annotated: u32,
     /// Fused clusters.
@@ -262,6 +276,16 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         return Err(anyhow!("{}: mask folder does not exist", d.display()));
     }
     let mut labels = LabelTable::default();
+    // The geometric segmenter when asked for, and by default when the dataset has no masks (and the variant
+    // uses semantics).
+    let segmenter = match opts.segmenter {
+        Some(Segmenter::Geometric) => true,
+        None => masks_dir.is_none() && params.variant.annotates(),
+    };
+    let object_class = labels.class_of("object");
+    let (w0, h0) = (dataset.camera.width as usize, dataset.camera.height as usize);
+    let mut seg_ids = vec![0u16; if segmenter { w0 * h0 } else { 0 }];
+    let mut seg_instances = vec![m2smap_core::Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
     let n = opts.frames.map_or(dataset.frames.len(), |k| k.min(dataset.frames.len()));
     let jsonl_path = opts.out.join("frames.jsonl");
     let mut jsonl = std::io::BufWriter::new(
@@ -276,17 +300,29 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
     let mut wire_buf = vec![0u8; WIRE_BUFFER_BYTES];
     for (index, fref) in dataset.frames.iter().take(n).enumerate() {
         let loaded = dataset.load(index)?;
-        let masks = match &masks_dir {
-            Some(d) => read_frame_masks(d, &fref.stem, loaded.width, loaded.height, &mut labels)?,
-            None => None,
+        let mut masks = match (&masks_dir, segmenter) {
+            (Some(d), false) => read_frame_masks(d, &fref.stem, loaded.width, loaded.height, &mut labels)?,
+            _ => None,
         };
         let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
         let gt = if gt_path.is_file() { Some(read_depth(&gt_path)?.2) } else { None };
         let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
         let start = Instant::now();
-        let report = *mapper
-            .process(frame, masks.as_ref().map(|m| m.view()))
-            .map_err(|e| anyhow!("{}: {e}", fref.depth.display()))?;
+        let report = if segmenter {
+            seg_ids.resize(loaded.width as usize * loaded.height as usize, 0);
+            let (report, k) = mapper
+                .process_segmented(frame, &mut seg_ids, &mut seg_instances, object_class)
+                .map_err(|e| anyhow!("{}: {e}", fref.depth.display()))?;
+            masks = Some(FrameMasks {
+                width: loaded.width,
+                height: loaded.height,
+                instances: seg_instances[..k].to_vec(),
+                pixels: Pixels::Ids(seg_ids.clone()),
+            });
+            report
+        } else {
+            *mapper.process(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{}: {e}", fref.depth.display()))?
+        };
         let ms = start.elapsed().as_secs_f64() * 1e3;
         let payload = mapper.encode_map(&mut wire_buf).map_err(|e| anyhow!("{}: encoding the map: {e}", fref.depth.display()))?;
         let checked = mapper.check(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{e}"))?;
@@ -307,6 +343,7 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             supervoxels: report.supervoxels,
             gaussians: report.gaussians,
             instances: masks.as_ref().map_or(0, |m| m.instances.len()),
+            segmenter: segmenter.then_some("geometric"),
             annotated: report.annotated,
             clusters: report.clusters,
             objects: report.objects,

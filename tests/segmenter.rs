@@ -1,0 +1,95 @@
+//! The geometric segmenter against ground truth: synthetic objects that stand apart, and the cabinet masks.
+
+mod common;
+
+use m2smap::eval::semantic_metrics;
+use m2smap::synth::Scene;
+use m2smap_core::{HostStorage, Instance, Mapper, Params};
+
+fn iou(a: &[u16], ida: u16, b: &[u16], idb: u16) -> f64 {
+    let (mut inter, mut union) = (0u32, 0u32);
+    for (&x, &y) in a.iter().zip(b) {
+        let (p, q) = (x == ida, y == idb);
+        inter += (p && q) as u32;
+        union += (p || q) as u32;
+    }
+    if union == 0 {
+        0.0
+    } else {
+        inter as f64 / union as f64
+    }
+}
+
+/// Best IoU of each ground-truth object (≥ 300 visible pixels) against the predicted instances, and how many
+/// predictions match some object with IoU ≥ 0.5.
+fn score(gt: &[u16], pred: &[u16], instances: &[Instance]) -> (Vec<f64>, usize) {
+    let mut ids: Vec<u16> = gt.iter().copied().filter(|&i| i != 0).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    let visible: Vec<u16> = ids.into_iter().filter(|&id| gt.iter().filter(|&&g| g == id).count() >= 300).collect();
+    let best: Vec<f64> = visible
+        .iter()
+        .map(|&g| instances.iter().map(|i| iou(gt, g, pred, i.id)).fold(0.0, f64::max))
+        .collect();
+    let matched = instances.iter().filter(|i| visible.iter().any(|&g| iou(gt, g, pred, i.id) >= 0.5)).count();
+    (best, matched)
+}
+
+#[test]
+fn finds_objects_that_stand_apart_and_keeps_them_unglued() {
+    let scene = Scene::named("tabletop").unwrap();
+    let (mut ious, mut predicted, mut matched) = (Vec::new(), 0usize, 0usize);
+    for k in [0usize, 3, 6, 9] {
+        let frame = scene.render(k, Some(5));
+        let gt = scene.instance_image(&frame);
+        let mut storage = bytemuck::zeroed_box::<HostStorage>();
+        let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+        let mut ids = vec![0u16; gt.len()];
+        let mut instances = [Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; 16];
+        let view = frame.frame.view(&scene.camera);
+        let (_, n) = mapper.process_segmented(view, &mut ids, &mut instances, 0).unwrap();
+        let (best, m) = score(&gt, &ids, &instances[..n]);
+        predicted += n;
+        matched += m;
+        ious.extend(best);
+        // The pipeline annotated with these masks never glues the two boxes to each other or to the floor.
+        let masks = m2smap_core::MaskSet {
+            width: 640,
+            height: 480,
+            instances: &instances[..n],
+            pixels: m2smap_core::MaskPixels::IdImage(&ids),
+        };
+        let checked = mapper.check(view, Some(masks)).unwrap();
+        let metrics = semantic_metrics(&mapper, &checked, |u, v| gt[v as usize * 640 + u as usize]);
+        assert_eq!(metrics.n_adh, 0, "frame {k}: adhesion with segmenter masks");
+    }
+    let recall = ious.iter().filter(|&&x| x >= 0.7).count() as f64 / ious.len() as f64;
+    let precision = matched as f64 / predicted.max(1) as f64;
+    let mean_iou = ious.iter().sum::<f64>() / ious.len() as f64;
+    println!("tabletop: {} objects, recall@0.7 {recall:.2}, precision@0.5 {precision:.2}, mean IoU {mean_iou:.3}", ious.len());
+    assert!(recall >= 0.9, "segmenter recall {recall:.2} at IoU 0.7");
+    assert!(precision >= 0.9, "segmenter precision {precision:.2}");
+}
+
+#[test]
+fn segments_the_cabinet_like_its_masks() {
+    let Some(data) = common::shared_data("tum_fr3_cabinet") else { return };
+    let d = m2smap::dataset::Dataset::open(&data, None).unwrap();
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+    let mut labels = m2smap::masks::LabelTable::default();
+    let mut ious = Vec::new();
+    for k in (0..d.frames.len()).step_by(4) {
+        let frame = d.load(k).unwrap();
+        let masks = m2smap::masks::read_frame_masks(&data.join("masks"), &d.frames[k].stem, 640, 480, &mut labels).unwrap().unwrap();
+        let reference: Vec<u16> = (0..480u16).flat_map(|v| (0..640u16).map(move |u| (u, v))).map(|(u, v)| masks.id_at(u, v)).collect();
+        let mut ids = vec![0u16; reference.len()];
+        let mut instances = [Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; 16];
+        let (_, n) = mapper.process_segmented(frame.view(&d.camera), &mut ids, &mut instances, 0).unwrap();
+        ious.push(instances[..n].iter().map(|i| iou(&reference, 1, &ids, i.id)).fold(0.0, f64::max));
+    }
+    let mean = ious.iter().sum::<f64>() / ious.len() as f64;
+    let good = ious.iter().filter(|&&x| x >= 0.7).count();
+    println!("cabinet: mean IoU {mean:.3} against the masks, {good} of {} frames at IoU >= 0.7", ious.len());
+    assert!(mean >= 0.6, "the segmenter should find the cabinet: mean IoU {mean:.3}");
+}
