@@ -141,20 +141,36 @@ impl MapPlane<'_> {
 }
 
 impl MapSq {
-    /// Surface points on a parametric (η, ω) grid about [`SQ_SAMPLE_SPACING`] apart, kept where the outward
-    /// normal faces the camera at the origin (a superquadric with ε ≤ 2 is convex: this is its visible side).
+    /// Surface points about [`SQ_SAMPLE_SPACING`] apart, kept where the outward normal faces the camera at the
+    /// origin (a superquadric with ε ≤ 2 is convex: this is its visible side). The grid is laid on the six faces
+    /// of the bounding box [−a, a] and each grid point is moved along its ray from the centre onto the surface
+    /// (F is homogeneous: p·F(p)^(−ε1/2)); unlike the (η, ω) parametrisation this stays even on box-like shapes,
+    /// whose parametric samples crowd at the edges.
     pub fn for_each_sample(&self, mut f: impl FnMut(Vec3)) {
-        let a = self.sq.scales[0].max(self.sq.scales[1]).max(self.sq.scales[2]);
-        let steps = |length: f32, lo: u32, hi: u32| (libm::ceilf(length / SQ_SAMPLE_SPACING) as u32).clamp(lo, hi);
-        let n_eta = steps(core::f32::consts::PI * a, 6, 64);
-        let n_omega = steps(2.0 * core::f32::consts::PI * a, 8, 128);
-        for i in 0..=n_eta {
-            let eta = -core::f32::consts::FRAC_PI_2 + core::f32::consts::PI * i as f32 / n_eta as f32;
-            for j in 0..n_omega {
-                let omega = -core::f32::consts::PI + 2.0 * core::f32::consts::PI * j as f32 / n_omega as f32;
-                let (p, n) = self.sq.surface(eta, omega);
-                if linalg::dot(n, p) < 0.0 {
-                    f(p);
+        let [a0, a1, a2] = self.sq.scales;
+        let count = |len: f32| (libm::ceilf(2.0 * len / SQ_SAMPLE_SPACING) as usize).clamp(1, 64);
+        // (face axis w, in-face axes u, v) with their half-lengths; `place` puts (w, u, v) back in x, y, z order.
+        type Place = fn(f32, f32, f32) -> Vec3;
+        let faces: [(f32, f32, f32, Place); 3] = [
+            (a0, a1, a2, |w, u, v| [w, u, v]),
+            (a1, a2, a0, |w, u, v| [v, w, u]),
+            (a2, a0, a1, |w, u, v| [u, v, w]),
+        ];
+        for (aw, au, av, place) in faces {
+            let (nu, nv) = (count(au), count(av));
+            for side in [-1.0f32, 1.0] {
+                for i in 0..nu {
+                    for j in 0..nv {
+                        let u = -au + (2 * i + 1) as f32 * au / nu as f32;
+                        let v = -av + (2 * j + 1) as f32 * av / nv as f32;
+                        let l = place(side * aw, u, v);
+                        let k = libm::powf(self.sq.implicit(l), -0.5 * self.sq.eps[0]);
+                        let l = linalg::scale(l, k);
+                        let p = linalg::add(self.sq.centre, linalg::mat_vec(&self.sq.rotation, l));
+                        if linalg::dot(self.sq.normal_at_local(l), p) < 0.0 && p.iter().all(|x| x.is_finite()) {
+                            f(p);
+                        }
+                    }
                 }
             }
         }

@@ -608,6 +608,14 @@ impl<'s> Mapper<'s> {
         self.gaussians.as_slice()
     }
 
+    /// The voxel of the last frame that a camera-frame point falls into (any point, sampled or not).
+    pub fn voxel_at(&self, p: Vec3) -> Option<&Voxel> {
+        let voxels = self.voxels.as_slice();
+        supervoxel::voxel_key(p, self.params.voxel_resolution)
+            .and_then(|k| supervoxel::find_voxel(voxels, self.slots, k))
+            .and_then(|i| voxels.get(i))
+    }
+
     /// Bounded planes of the last frame.
     pub fn planes(&self) -> &[Plane] {
         self.planes.as_slice()

@@ -113,6 +113,11 @@ impl Superquadric {
         self.distance_at(self.local(p)).0
     }
 
+    /// Outward unit normal (camera frame) of the surface point with local coordinates `l`.
+    pub fn normal_at_local(&self, l: Vec3) -> Vec3 {
+        linalg::mat_vec(&self.rotation, self.distance_at(l).1)
+    }
+
     /// [`Superquadric::distance`] at local coordinates `l`, with the unit normal ∇G/‖∇G‖ (local frame; the
     /// direction from the centre where ∇G vanishes).
     fn distance_at(&self, l: Vec3) -> (f32, Vec3) {

@@ -7,7 +7,9 @@
 pub mod budget;
 pub mod dataset;
 pub mod eval;
+pub mod export;
 pub mod firmware;
 pub mod masks;
+pub mod render;
 pub mod run;
 pub mod synth;

@@ -7,7 +7,20 @@ use std::process::ExitCode;
 use anyhow::{anyhow, Result};
 use clap::{Parser, Subcommand};
 use m2smap::run::{run, ProfileChoice, RunOptions, Segmenter};
-use m2smap::{budget, synth};
+use anyhow::Context;
+use m2smap::dataset::Dataset;
+use m2smap::masks::{mask_dir, LabelTable};
+use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
+use m2smap::{budget, export, render, synth};
+use m2smap_core::{HostStorage, Mapper, Params};
+
+/// Mask files when they exist and no segmenter was asked for; the segmenter otherwise.
+fn mask_source(dir: &Option<PathBuf>, segmenter: Option<Segmenter>) -> MaskSource<'_> {
+    match (dir, segmenter) {
+        (Some(d), None) => MaskSource::Files(Some(d.as_path())),
+        _ => MaskSource::Segmenter,
+    }
+}
 use m2smap_core::Variant;
 
 #[derive(Parser)]
@@ -65,6 +78,46 @@ enum Command {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Draw the four-panel picture of frame K (masks, Gaussians, fused clusters, map) into a PNG.
+    Render {
+        /// Dataset folder.
+        dataset: PathBuf,
+        /// Frame index (from 0).
+        #[arg(long)]
+        frame: usize,
+        /// Output PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Instance-mask folder (default: DATASET/masks when it exists).
+        #[arg(long, conflicts_with = "segmenter")]
+        masks: Option<PathBuf>,
+        /// Use the built-in depth-only segmenter (the default when the dataset has no masks).
+        #[arg(long, value_enum)]
+        segmenter: Option<Segmenter>,
+    },
+    /// Export the reconstructed map of frame K (or of every frame) as PLY point clouds.
+    Export {
+        /// Dataset folder.
+        dataset: PathBuf,
+        /// Frame index (from 0).
+        #[arg(long, default_value_t = 0)]
+        frame: usize,
+        /// Output PLY file; with --all-frames, a folder of frame_NNNNNN.ply.
+        #[arg(long)]
+        ply: PathBuf,
+        /// Export every frame of the sequence (tracks carry over between frames).
+        #[arg(long)]
+        all_frames: bool,
+        /// World coordinates (needs poses in the dataset).
+        #[arg(long)]
+        world: bool,
+        /// Instance-mask folder (default: DATASET/masks when it exists).
+        #[arg(long, conflicts_with = "segmenter")]
+        masks: Option<PathBuf>,
+        /// Use the built-in depth-only segmenter (the default when the dataset has no masks).
+        #[arg(long, value_enum)]
+        segmenter: Option<Segmenter>,
     },
     /// Print the memory budget table of the mcu profile.
     Budget,
@@ -148,6 +201,48 @@ fn execute(cli: Cli) -> Result<()> {
             let d = m2smap::dataset::Dataset::open(&dataset, None)?;
             m2smap::firmware::export(&d, frames, &out)?;
             println!("wrote {frames} firmware frames and expected.txt to {}", out.display());
+            Ok(())
+        }
+        Command::Render { dataset, frame, out, masks, segmenter } => {
+            let d = Dataset::open(&dataset, None)?;
+            let mut storage = bytemuck::zeroed_box::<HostStorage>();
+            let mut mapper = Mapper::new(&mut *storage, Params::default()).map_err(|e| anyhow!("{e}"))?;
+            let masks_dir = mask_dir(&d.root, masks.as_deref());
+            let source = mask_source(&masks_dir, segmenter);
+            let mut seg = SegmenterBuffers::default();
+            let m = map_frame(&mut mapper, &d, frame, source, &mut LabelTable::default(), &mut seg)?;
+            let view = m.loaded.view(&d.camera);
+            render::render_panels(&mapper, &view, m.masks.as_ref(), &out)?;
+            println!("frame {frame}: {} planes, {} SQs, {} GMMs -> {}", m.report.planes, m.report.sqs, m.report.gmms, out.display());
+            Ok(())
+        }
+        Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter } => {
+            let d = Dataset::open(&dataset, None)?;
+            let mut storage = bytemuck::zeroed_box::<HostStorage>();
+            let mut mapper = Mapper::new(&mut *storage, Params::default()).map_err(|e| anyhow!("{e}"))?;
+            let masks_dir = mask_dir(&d.root, masks.as_deref());
+            let source = mask_source(&masks_dir, segmenter);
+            let mut seg = SegmenterBuffers::default();
+            let mut labels = LabelTable::default();
+            let frames: Vec<usize> = if all_frames { (0..d.frames.len()).collect() } else { (0..=frame).collect() };
+            if all_frames {
+                std::fs::create_dir_all(&ply).with_context(|| format!("{}: cannot create", ply.display()))?;
+            }
+            for k in frames {
+                map_frame(&mut mapper, &d, k, source, &mut labels, &mut seg)?;
+                if !all_frames && k != frame {
+                    continue; // earlier frames only warm the superquadric tracks
+                }
+                let pose = match (world, d.frames[k].pose.as_ref()) {
+                    (true, Some(p)) => Some(p),
+                    (true, None) => anyhow::bail!("{}: --world needs camera poses, frame {k} has none", d.root.display()),
+                    (false, _) => None,
+                };
+                let path = if all_frames { ply.join(format!("frame_{k:06}.ply")) } else { ply.clone() };
+                let v = export::vertices(&mapper, pose);
+                export::write_ply(&path, &v)?;
+                println!("frame {k}: {} vertices -> {}", v.len(), path.display());
+            }
             Ok(())
         }
         Command::Budget => {

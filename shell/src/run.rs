@@ -211,6 +211,76 @@ pub struct Summary {
 /// under 200 KiB).
 pub const WIRE_BUFFER_BYTES: usize = 1 << 20;
 
+/// Where one frame's masks come from.
+#[derive(Debug, Clone, Copy)]
+pub enum MaskSource<'a> {
+    /// Mask files in this folder (none: no masks).
+    Files(Option<&'a Path>),
+    /// The core's geometric segmenter.
+    Segmenter,
+}
+
+/// Caller-owned buffers of the geometric segmenter, reused across frames.
+#[derive(Debug, Default)]
+pub struct SegmenterBuffers {
+    ids: Vec<u16>,
+    instances: Vec<m2smap_core::Instance>,
+}
+
+/// One mapped frame.
+pub struct Mapped {
+    /// The decoded frame.
+    pub loaded: crate::dataset::LoadedFrame,
+    /// Its masks (from files or the segmenter).
+    pub masks: Option<FrameMasks>,
+    /// The core's report.
+    pub report: FrameReport,
+    /// Core pipeline time, milliseconds (decoding excluded).
+    pub ms: f64,
+}
+
+/// Loads frame `index` of `dataset` with its masks and runs the pipeline on it (with the dataset's pose).
+pub fn map_frame(
+    mapper: &mut Mapper<'_>,
+    dataset: &Dataset,
+    index: usize,
+    source: MaskSource<'_>,
+    labels: &mut LabelTable,
+    seg: &mut SegmenterBuffers,
+) -> Result<Mapped> {
+    let fref = dataset.frames.get(index).ok_or_else(|| anyhow!("{}: no frame {index}", dataset.root.display()))?;
+    let loaded = dataset.load(index)?;
+    let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
+    let error = |e: m2smap_core::FrameError| anyhow!("{}: {e}", fref.depth.display());
+    match source {
+        MaskSource::Files(dir) => {
+            let masks = match dir {
+                Some(d) => read_frame_masks(d, &fref.stem, loaded.width, loaded.height, labels)?,
+                None => None,
+            };
+            let start = Instant::now();
+            let report = *mapper.process(frame, masks.as_ref().map(|m| m.view())).map_err(error)?;
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            Ok(Mapped { loaded, masks, report, ms })
+        }
+        MaskSource::Segmenter => {
+            let class = labels.class_of("object");
+            seg.ids.resize(frame.pixels(), 0);
+            seg.instances.resize(SEGMENTER_INSTANCES, m2smap_core::Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] });
+            let start = Instant::now();
+            let (report, k) = mapper.process_segmented(frame, &mut seg.ids, &mut seg.instances, class).map_err(error)?;
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            let masks = FrameMasks {
+                width: loaded.width,
+                height: loaded.height,
+                instances: seg.instances[..k].to_vec(),
+                pixels: Pixels::Ids(seg.ids.clone()),
+            };
+            Ok(Mapped { loaded, masks: Some(masks), report, ms })
+        }
+    }
+}
+
 /// Reads `Params` from a JSON file of overrides (unknown keys are an error).
 pub fn load_params(path: Option<&Path>) -> Result<Params> {
     let Some(path) = path else { return Ok(Params::default()) };
@@ -282,10 +352,7 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         Some(Segmenter::Geometric) => true,
         None => masks_dir.is_none() && params.variant.annotates(),
     };
-    let object_class = labels.class_of("object");
-    let (w0, h0) = (dataset.camera.width as usize, dataset.camera.height as usize);
-    let mut seg_ids = vec![0u16; if segmenter { w0 * h0 } else { 0 }];
-    let mut seg_instances = vec![m2smap_core::Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
+    let mut seg = SegmenterBuffers::default();
     let n = opts.frames.map_or(dataset.frames.len(), |k| k.min(dataset.frames.len()));
     let jsonl_path = opts.out.join("frames.jsonl");
     let mut jsonl = std::io::BufWriter::new(
@@ -299,31 +366,17 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
     let mut records = Vec::with_capacity(n);
     let mut wire_buf = vec![0u8; WIRE_BUFFER_BYTES];
     for (index, fref) in dataset.frames.iter().take(n).enumerate() {
-        let loaded = dataset.load(index)?;
-        let mut masks = match (&masks_dir, segmenter) {
-            (Some(d), false) => read_frame_masks(d, &fref.stem, loaded.width, loaded.height, &mut labels)?,
-            _ => None,
-        };
         let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
         let gt = if gt_path.is_file() { Some(read_depth(&gt_path)?.2) } else { None };
+        let Mapped { loaded, masks, report, ms } = map_frame(
+            &mut mapper,
+            dataset,
+            index,
+            if segmenter { MaskSource::Segmenter } else { MaskSource::Files(masks_dir.as_deref()) },
+            &mut labels,
+            &mut seg,
+        )?;
         let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
-        let start = Instant::now();
-        let report = if segmenter {
-            seg_ids.resize(loaded.width as usize * loaded.height as usize, 0);
-            let (report, k) = mapper
-                .process_segmented(frame, &mut seg_ids, &mut seg_instances, object_class)
-                .map_err(|e| anyhow!("{}: {e}", fref.depth.display()))?;
-            masks = Some(FrameMasks {
-                width: loaded.width,
-                height: loaded.height,
-                instances: seg_instances[..k].to_vec(),
-                pixels: Pixels::Ids(seg_ids.clone()),
-            });
-            report
-        } else {
-            *mapper.process(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{}: {e}", fref.depth.display()))?
-        };
-        let ms = start.elapsed().as_secs_f64() * 1e3;
         let payload = mapper.encode_map(&mut wire_buf).map_err(|e| anyhow!("{}: encoding the map: {e}", fref.depth.display()))?;
         let checked = mapper.check(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{e}"))?;
         let w = loaded.width as usize;
