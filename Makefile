@@ -9,7 +9,9 @@ FW_FRAMES := $(CURDIR)/target/fw-frames
 FW_ELF := firmware/target/$(TARGET_MCU)/release/m2smap-firmware
 QEMU := timeout 600 qemu-system-arm -machine mps2-an500 -nographic -semihosting-config enable=on,target=native -icount shift=0
 
-.PHONY: demo test bench core-nostd budget firmware firmware-check
+.PHONY: demo test bench core-nostd budget firmware firmware-check fuzz
+FUZZ_SECONDS ?= 600
+FUZZ_TARGETS := wire_decode mapper_frame masks_parse lists_parse
 
 ## Map a synthetic scene the project makes itself (no ../shared needed) and print a summary.
 demo:
@@ -61,3 +63,8 @@ firmware-check:
 	else \
 		echo "make test: firmware check SKIPPED (needs qemu-system-arm, arm-none-eabi-size and $(SHARED)/tum_fr3_cabinet)"; \
 	fi
+
+## Fuzz every target for FUZZ_SECONDS each (nightly + cargo-fuzz; `cargo install cargo-fuzz`). The committed seeds
+## and every crash ever found are replayed by `cargo test` (tests/fuzz_replay.rs) without nightly.
+fuzz:
+	@for t in $(FUZZ_TARGETS); do fuzz/run.sh $$t $(FUZZ_SECONDS); done

@@ -17,6 +17,7 @@ use crate::frame::Frame;
 use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
 use crate::masks::{Instance, MaskSet};
 use crate::segment;
+use crate::snapshot;
 use crate::params::Params;
 use crate::points::Point;
 use crate::pool::{Bounded, PoolId, PoolUsage};
@@ -100,6 +101,8 @@ pub struct FrameReport {
     pub new_tracks: u32,
     /// Measurements refused by the tracks' scale gate (the track state was kept).
     pub sq_gated: u32,
+    /// Largest move of a track's centre in this frame's updates, metres (never more than d_max).
+    pub max_track_step_m: f32,
     /// Sum of the rotation changes of the tracks updated this frame, degrees (J_sq numerator).
     pub sq_jump_sum_deg: f32,
     /// Track updates this frame that had a previous state (J_sq denominator).
@@ -525,6 +528,7 @@ impl<'s> Mapper<'s> {
                     state = SQ_ACCEPTED;
                     let updated = self.tracker.update(&to_track(&fit.sq), object.class, &params, params.variant.aligns());
                     sq = to_camera(&updated.sq);
+                    self.report.max_track_step_m = self.report.max_track_step_m.max(updated.step_m);
                     track = updated.index.and_then(|i| self.tracker.tracks.get(i)).map_or(0, |t| t.id);
                     if updated.new {
                         self.report.new_tracks += 1;
@@ -663,6 +667,43 @@ impl<'s> Mapper<'s> {
     /// Encodes the last frame's map into `buf` in the wire format; returns the bytes written.
     pub fn encode_map(&self, buf: &mut [u8]) -> Result<usize, WireError> {
         wire::encode(buf, self.frames, |sink| self.for_each_primitive(|p| sink(p)))
+    }
+
+    /// Writes the state that carries across frames (frame counter, superquadric tracks) into `buf` as a
+    /// checksummed snapshot (see [`crate::snapshot`]); returns the bytes written.
+    pub fn snapshot(&self, buf: &mut [u8]) -> Result<usize, WireError> {
+        let state = snapshot::State {
+            frames: self.frames,
+            tracker_frame: self.tracker.frame,
+            next_track_id: self.tracker.next_id,
+        };
+        snapshot::write(buf, &state, self.tracker.tracks.as_slice())
+    }
+
+    /// Restores a snapshot written by [`Mapper::snapshot`]. A corrupt, truncated, foreign or oversized snapshot
+    /// is refused with its error and leaves the mapper fresh (no tracks, frame counter 0).
+    pub fn restore(&mut self, bytes: &[u8]) -> Result<(), WireError> {
+        self.tracker.tracks.clear();
+        self.tracker.next_id = 0;
+        self.tracker.frame = 0;
+        self.frames = 0;
+        let capacity = self.tracker.tracks.usage().capacity;
+        let tracks = &mut self.tracker.tracks;
+        let state = snapshot::read(bytes, capacity, |t| {
+            let _ = tracks.push(t);
+        });
+        match state {
+            Ok(s) => {
+                self.frames = s.frames;
+                self.tracker.frame = s.tracker_frame;
+                self.tracker.next_id = s.next_track_id;
+                Ok(())
+            }
+            Err(e) => {
+                self.tracker.tracks.clear();
+                Err(e)
+            }
+        }
     }
 
     /// Forgets every superquadric track (the next fits start cold).

@@ -179,6 +179,10 @@ pub type McuStorage = Storage<8192, 16384, 128, 128, 576, 1024, 8, 32, 16, 256, 
 /// The `host` profile: larger pools for workstation replays (frames up to 1280×1024).
 pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }>;
 
+/// The `tiny` profile: every pool a few entries, to exercise overflow handling on real frames (robustness
+/// tests); it maps a 640×480 frame badly but never fails.
+pub type TinyStorage = Storage<512, 1024, 8, 8, 32, 64, 2, 4, 2, 128, { 640 * 480 }>;
+
 /// RAM budget of the `mcu` profile, bytes.
 pub const MCU_BUDGET_BYTES: usize = 512 * 1024;
 

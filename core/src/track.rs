@@ -138,6 +138,8 @@ pub struct Updated {
     pub sq: Superquadric,
     /// Whether the measurement was refused by the scale gate (the track's state is returned unchanged).
     pub gated: bool,
+    /// How far the update moved the track's centre, metres (0 for a new track).
+    pub step_m: f32,
 }
 
 /// Whether the sorted half-axes of the measurement are each within a factor `gate` of the track's (sorted, so
@@ -203,15 +205,16 @@ impl<'a> Tracker<'a> {
                 if !within_scale_gate(&t.sq, &aligned, params.track_scale_gate) {
                     // An outlier shape (a bad fit): the track keeps its state and stays alive.
                     t.last_frame = frame;
-                    return Updated { index: Some(i), new: false, jump_deg: 0.0, sq: t.sq, gated: true };
+                    return Updated { index: Some(i), new: false, jump_deg: 0.0, sq: t.sq, gated: true, step_m: 0.0 };
                 }
                 let smoothed = smooth(&t.sq, &aligned, params);
                 let jump = linalg::rotation_angle_between(&t.sq.rotation, &smoothed.rotation);
+                let step_m = linalg::norm(linalg::sub(smoothed.centre, t.sq.centre));
                 t.sq = smoothed;
                 t.last_frame = frame;
                 t.updates += 1;
                 t.last_jump_deg = jump.to_degrees();
-                return Updated { index: Some(i), new: false, jump_deg: t.last_jump_deg, sq: smoothed, gated: false };
+                return Updated { index: Some(i), new: false, jump_deg: t.last_jump_deg, sq: smoothed, gated: false, step_m };
             }
         }
         let track = Track { sq: *sq, id: self.next_id, class, last_frame: frame, updates: 1, last_jump_deg: 0.0 };
@@ -219,7 +222,7 @@ impl<'a> Tracker<'a> {
         if index.is_some() {
             self.next_id = self.next_id.wrapping_add(1);
         }
-        Updated { index, new: index.is_some(), jump_deg: 0.0, sq: *sq, gated: false }
+        Updated { index, new: index.is_some(), jump_deg: 0.0, sq: *sq, gated: false, step_m: 0.0 }
     }
 }
 

@@ -248,12 +248,21 @@ pub fn pose_at(trajectory: &[(f64, Pose)], t: f64) -> Option<Pose> {
 
 /// Reads a TUM `groundtruth.txt` into a time-sorted trajectory.
 pub fn read_trajectory(path: &Path) -> Result<Vec<(f64, Pose)>> {
-    let entries = read_list(path, 7)?;
+    let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    parse_trajectory(&text).map_err(|e| anyhow!("{}:{e}", path.display()))
+}
+
+/// Parses the text of a TUM trajectory (`timestamp tx ty tz qx qy qz qw` lines); errors are `line: message`.
+pub fn parse_trajectory(text: &str) -> Result<Vec<(f64, Pose)>> {
+    let entries = parse_list(text, 7)?;
     let mut out = Vec::with_capacity(entries.len());
     for e in entries {
         let v: Vec<f64> = e.fields.iter().take(7).map(|s| s.parse::<f64>()).collect::<Result<_, _>>().map_err(
-            |_| anyhow!("{}: malformed pose at timestamp {}", path.display(), e.timestamp),
+            |_| anyhow!(" malformed pose at timestamp {}", e.timestamp),
         )?;
+        if v.iter().any(|x| !x.is_finite()) {
+            bail!(" non-finite pose at timestamp {}", e.timestamp);
+        }
         out.push((e.timestamp, Pose { t: [v[0], v[1], v[2]], q: normalize4([v[3], v[4], v[5], v[6]]) }));
     }
     out.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -420,15 +429,7 @@ fn open_tum(root: &Path) -> Result<(Option<Camera>, Vec<FrameRef>)> {
 fn open_seven_scenes(root: &Path) -> Result<(Option<Camera>, Vec<FrameRef>)> {
     let k_path = root.join("camera-intrinsics.txt");
     let text = fs::read_to_string(&k_path).with_context(|| format!("{}: cannot read", k_path.display()))?;
-    let k: Vec<f32> = text
-        .split_whitespace()
-        .map(|s| s.parse::<f32>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| anyhow!("{}: malformed intrinsics (expected 9 numbers)", k_path.display()))?;
-    if k.len() != 9 {
-        bail!("{}: malformed intrinsics (expected 9 numbers, found {})", k_path.display(), k.len());
-    }
-    let camera = Camera { fx: k[0], fy: k[4], cx: k[2], cy: k[5], width: 640, height: 480, depth_scale: 1000.0 };
+    let camera = parse_intrinsics(&text).map_err(|e| anyhow!("{}: {e}", k_path.display()))?;
     let mut frames = Vec::new();
     let entries = fs::read_dir(root).with_context(|| format!("{}: cannot list", root.display()))?;
     for entry in entries {
@@ -453,13 +454,31 @@ fn open_seven_scenes(root: &Path) -> Result<(Option<Camera>, Vec<FrameRef>)> {
 
 fn read_pose_matrix(path: &Path) -> Result<Pose> {
     let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    parse_pose_matrix(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
+}
+
+/// Parses a 7-Scenes `camera-intrinsics.txt` (a 3×3 K) into a 640×480, millimetre-depth camera.
+pub fn parse_intrinsics(text: &str) -> Result<Camera> {
+    let k: Vec<f32> = text
+        .split_whitespace()
+        .map(|s| s.parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| anyhow!("malformed intrinsics (expected 9 numbers)"))?;
+    if k.len() != 9 || k.iter().any(|x| !x.is_finite()) {
+        bail!("malformed intrinsics (expected 9 finite numbers, found {})", k.len());
+    }
+    Ok(Camera { fx: k[0], fy: k[4], cx: k[2], cy: k[5], width: 640, height: 480, depth_scale: 1000.0 })
+}
+
+/// Parses a 7-Scenes `frame-*.pose.txt` (a 4×4 camera-to-world matrix).
+pub fn parse_pose_matrix(text: &str) -> Result<Pose> {
     let m: Vec<f64> = text
         .split_whitespace()
         .map(|s| s.parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| anyhow!("{}: malformed pose (expected a 4x4 matrix)", path.display()))?;
-    if m.len() != 16 {
-        bail!("{}: malformed pose (expected 16 numbers, found {})", path.display(), m.len());
+        .map_err(|_| anyhow!("malformed pose (expected a 4x4 matrix)"))?;
+    if m.len() != 16 || m.iter().any(|x| !x.is_finite()) {
+        bail!("malformed pose (expected 16 finite numbers, found {})", m.len());
     }
     let r = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
     Ok(Pose::from_matrix(r, [m[3], m[7], m[11]]))

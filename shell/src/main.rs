@@ -60,6 +60,13 @@ enum Command {
         /// Make masks with the built-in depth-only segmenter (the default when the dataset has no masks).
         #[arg(long, value_enum)]
         segmenter: Option<Segmenter>,
+        /// Inject stream faults with this seed (dropped and repeated frames, dead or spiky depth, NaN poses,
+        /// stale masks, pose jumps); rejected frames are reported in frames.jsonl and the run goes on.
+        #[arg(long)]
+        faults: Option<u32>,
+        /// Fraction of frames hit by --faults.
+        #[arg(long, default_value_t = 0.25)]
+        fault_rate: f32,
     },
     /// Write a synthetic scene with ground truth as a TUM folder.
     Synth {
@@ -146,7 +153,7 @@ fn main() -> ExitCode {
 
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { dataset, out, variant, frames, config, camera, profile, masks, segmenter } => {
+        Command::Run { dataset, out, variant, frames, config, camera, profile, masks, segmenter, faults, fault_rate } => {
             let variant = match variant {
                 Some(name) => Some(Variant::from_name(&name).ok_or_else(|| anyhow!("unknown variant {name:?}"))?),
                 None => None,
@@ -161,6 +168,7 @@ fn execute(cli: Cli) -> Result<()> {
                 profile,
                 masks,
                 segmenter,
+                faults: faults.map(|seed| (seed, fault_rate)),
                 progress: std::io::stderr().is_terminal(),
             };
             let s = run(&opts)?;

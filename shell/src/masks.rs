@@ -112,33 +112,41 @@ pub fn read_frame_masks(dir: &Path, stem: &str, width: u16, height: u16, labels:
 }
 
 fn read_id_masks(png: &Path, json: &Path, width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
-    let img = image::ImageReader::open(png)
-        .with_context(|| format!("{}: cannot open", png.display()))?
-        .with_guessed_format()
-        .with_context(|| format!("{}: cannot read", png.display()))?
-        .decode()
-        .map_err(|e| anyhow!("{}: cannot decode mask image: {e}", png.display()))?;
+    let bytes = fs::read(png).with_context(|| format!("{}: cannot open", png.display()))?;
+    let text = fs::read_to_string(json).with_context(|| format!("{}: cannot read (needed beside {})", json.display(), png.display()))?;
+    parse_id_masks(&bytes, &png.display().to_string(), &text, &json.display().to_string(), width, height, labels)
+}
+
+/// Parses an id image (PNG bytes) and its instance list (JSON text); `png` and `json` name them in errors.
+pub fn parse_id_masks(
+    bytes: &[u8],
+    png: &str,
+    text: &str,
+    json: &str,
+    width: u16,
+    height: u16,
+    labels: &mut LabelTable,
+) -> Result<FrameMasks> {
+    let img = image::load_from_memory(bytes).map_err(|e| anyhow!("{png}: cannot decode mask image: {e}"))?;
     let (w, h) = (img.width(), img.height());
     if (w, h) != (width as u32, height as u32) {
-        bail!("{}: mask is {w}x{h} but the frame is {width}x{height}", png.display());
+        bail!("{png}: mask is {w}x{h} but the frame is {width}x{height}");
     }
     let ids: Vec<u16> = match img {
         image::DynamicImage::ImageLuma8(m) => m.into_raw().into_iter().map(u16::from).collect(),
         image::DynamicImage::ImageLuma16(m) => m.into_raw(),
-        other => bail!("{}: mask must be an 8- or 16-bit single-channel PNG, found {:?}", png.display(), other.color()),
+        other => bail!("{png}: mask must be an 8- or 16-bit single-channel PNG, found {:?}", other.color()),
     };
-    let text = fs::read_to_string(json).with_context(|| format!("{}: cannot read (needed beside {})", json.display(), png.display()))?;
-    let parsed: JsonMasks =
-        serde_json::from_str(&text).map_err(|e| anyhow!("{}: malformed instance list: {e}", json.display()))?;
+    let parsed: JsonMasks = serde_json::from_str(text).map_err(|e| anyhow!("{json}: malformed instance list: {e}"))?;
     let mut instances = Vec::with_capacity(parsed.instances.len());
     for i in parsed.instances {
         if !(i.score.is_finite() && (0.0..=1.0).contains(&i.score)) {
-            bail!("{}: instance {} has score {} outside [0, 1]", json.display(), i.id, i.score);
+            bail!("{json}: instance {} has score {} outside [0, 1]", i.id, i.score);
         }
         let [x0, y0, x1, y1] = i.bbox;
         let clamp = |x: i64, hi: u16| x.clamp(0, hi as i64 - 1) as u16;
         if x0 > x1 || y0 > y1 || x1 < 0 || y1 < 0 || x0 >= width as i64 || y0 >= height as i64 {
-            bail!("{}: instance {} has an empty or out-of-image box {:?}", json.display(), i.id, i.bbox);
+            bail!("{json}: instance {} has an empty or out-of-image box {:?}", i.id, i.bbox);
         }
         instances.push(Instance {
             id: i.id,
@@ -151,7 +159,7 @@ fn read_id_masks(png: &Path, json: &Path, width: u16, height: u16, labels: &mut 
     missing.sort_unstable();
     missing.dedup();
     if let Some(id) = missing.first() {
-        bail!("{}: mask id {id} has no entry in {}", png.display(), json.display());
+        bail!("{png}: mask id {id} has no entry in {json}");
     }
     Ok(FrameMasks { width, height, instances, pixels: Pixels::Ids(ids) })
 }
@@ -167,9 +175,14 @@ fn read_names(dir: &Path) -> Result<Vec<String>> {
     Ok(Vec::new())
 }
 
-/// Parses YOLO segmentation text into bit planes.
+/// Reads YOLO segmentation text into bit planes.
 pub fn read_yolo(path: &Path, names: &[String], width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
     let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    parse_yolo(&text, &path.display().to_string(), names, width, height, labels)
+}
+
+/// Parses YOLO segmentation text (`name` labels its errors) into bit planes.
+pub fn parse_yolo(text: &str, name: &str, names: &[String], width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
     let plane = MaskSet::plane_bytes(width, height);
     let mut bits = Vec::new();
     let mut instances = Vec::new();
@@ -178,7 +191,7 @@ pub fn read_yolo(path: &Path, names: &[String], width: u16, height: u16, labels:
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
-        let bad = |why: &str| anyhow!("{}:{}: {why}: {line:?}", path.display(), n + 1);
+        let bad = |why: &str| anyhow!("{name}:{}: {why}: {line:?}", n + 1);
         let mut fields = line.split_whitespace();
         let class: usize = fields.next().and_then(|c| c.parse().ok()).ok_or_else(|| bad("malformed class"))?;
         let values: Vec<f64> =

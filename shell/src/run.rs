@@ -8,11 +8,12 @@ use std::time::Instant;
 
 use anyhow::{anyhow, Context, Result};
 use bytemuck::Zeroable;
-use m2smap_core::{FrameReport, HostStorage, Mapper, McuStorage, Params, PoolId, Profile, Variant};
+use m2smap_core::{FrameReport, HostStorage, Mapper, McuStorage, Params, PoolId, Profile, TinyStorage, Variant};
 use serde::Serialize;
 
 use crate::dataset::{read_depth, Dataset};
 use crate::eval;
+use crate::faults::{self, Fault};
 use crate::masks::{mask_dir, read_frame_masks, FrameMasks, LabelTable, Pixels};
 
 /// Instance buffer of the geometric segmenter.
@@ -32,6 +33,8 @@ pub enum ProfileChoice {
     Host,
     /// The 512 KiB microcontroller profile.
     Mcu,
+    /// Every pool a few entries (robustness testing).
+    Tiny,
 }
 
 /// Options of `m2smap run`.
@@ -55,6 +58,8 @@ pub struct RunOptions {
     pub masks: Option<PathBuf>,
     /// `--segmenter geometric`; the default when no masks exist.
     pub segmenter: Option<Segmenter>,
+    /// Fault injection: (seed, fraction of frames); rejected frames are then reported instead of stopping the run.
+    pub faults: Option<(u32, f32)>,
     /// Show a progress bar (on a terminal).
     pub progress: bool,
 }
@@ -84,7 +89,7 @@ pub struct PoolRecord {
 }
 
 /// Per-frame values (the keys of SPEC §6 plus the stage counts), one line of `frames.jsonl`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct FrameRecord {
     /// Frame index in the run, from 0.
     pub index: usize,
@@ -104,6 +109,12 @@ pub struct FrameRecord {
     pub instances: usize,
     /// The segmenter that made the masks, when they did not come from files.
     pub segmenter: Option<&'static str>,
+    /// The fault injected into this frame, if any.
+    pub fault: Option<Fault>,
+    /// Why the core rejected the frame (its map and tracks stayed as they were); the counts are then zero.
+    pub rejected: Option<String>,
+    /// Largest move of a superquadric track in this frame, metres.
+    pub max_track_step_m: f64,
     /// Gaussians annotated with an instance.
     pub annotated: u32,
     /// Fused clusters.
@@ -155,8 +166,14 @@ pub struct FrameRecord {
 /// `summary.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
-    /// Frames processed.
+    /// Frames mapped.
     pub frames: usize,
+    /// Frames the core rejected (fault injection).
+    pub frames_rejected: usize,
+    /// Frames dropped from the stream (fault injection).
+    pub frames_dropped: usize,
+    /// Largest move of a superquadric track between two frames, metres.
+    pub max_track_step_m: f64,
     /// Variant name.
     pub variant: String,
     /// Capacity profile.
@@ -248,14 +265,37 @@ pub fn map_frame(
     labels: &mut LabelTable,
     seg: &mut SegmenterBuffers,
 ) -> Result<Mapped> {
+    map_frame_with_fault(mapper, dataset, index, source, labels, seg, None)
+}
+
+/// [`map_frame`] with an injected fault (see [`crate::faults`]); `Dropped` and `RepeatedTimestamp` are the
+/// caller's to apply, they change nothing here.
+pub fn map_frame_with_fault(
+    mapper: &mut Mapper<'_>,
+    dataset: &Dataset,
+    index: usize,
+    source: MaskSource<'_>,
+    labels: &mut LabelTable,
+    seg: &mut SegmenterBuffers,
+    fault: Option<(Fault, u32)>,
+) -> Result<Mapped> {
     let fref = dataset.frames.get(index).ok_or_else(|| anyhow!("{}: no frame {index}", dataset.root.display()))?;
-    let loaded = dataset.load(index)?;
-    let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
+    let mut loaded = dataset.load(index)?;
+    let mut pose = fref.pose;
+    let mut mask_stem = fref.stem.as_str();
+    if let Some((f, seed)) = fault {
+        faults::corrupt_depth(&mut loaded, f, seed ^ index as u32);
+        pose = faults::corrupt_pose(pose, f);
+        if f == Fault::StaleMasks {
+            mask_stem = dataset.frames.get(index.saturating_sub(5)).map_or(mask_stem, |r| r.stem.as_str());
+        }
+    }
+    let frame = loaded.view_posed(&dataset.camera, pose.as_ref());
     let error = |e: m2smap_core::FrameError| anyhow!("{}: {e}", fref.depth.display());
     match source {
         MaskSource::Files(dir) => {
             let masks = match dir {
-                Some(d) => read_frame_masks(d, &fref.stem, loaded.width, loaded.height, labels)?,
+                Some(d) => read_frame_masks(d, mask_stem, loaded.width, loaded.height, labels)?,
                 None => None,
             };
             let start = Instant::now();
@@ -332,6 +372,7 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
     let records = match opts.profile {
         ProfileChoice::Host => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<HostStorage>())?,
         ProfileChoice::Mcu => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<McuStorage>())?,
+        ProfileChoice::Tiny => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<TinyStorage>())?,
     };
     let summary = summarise(&records, params.variant, opts.profile);
     let path = opts.out.join("summary.json");
@@ -366,16 +407,31 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
     let mut records = Vec::with_capacity(n);
     let mut wire_buf = vec![0u8; WIRE_BUFFER_BYTES];
     for (index, fref) in dataset.frames.iter().take(n).enumerate() {
+        let fault = opts.faults.and_then(|(seed, rate)| faults::fault_of(seed, index, rate));
+        if fault == Some(Fault::Dropped) {
+            records.push(FrameRecord { index, stem: fref.stem.clone(), fault, ..FrameRecord::default() });
+            bar.inc(1);
+            continue;
+        }
+        let repeats = if fault == Some(Fault::RepeatedTimestamp) { 2 } else { 1 };
+        for _ in 0..repeats {
         let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
         let gt = if gt_path.is_file() { Some(read_depth(&gt_path)?.2) } else { None };
-        let Mapped { loaded, masks, report, ms } = map_frame(
-            &mut mapper,
-            dataset,
-            index,
-            if segmenter { MaskSource::Segmenter } else { MaskSource::Files(masks_dir.as_deref()) },
-            &mut labels,
-            &mut seg,
-        )?;
+        let source = if segmenter { MaskSource::Segmenter } else { MaskSource::Files(masks_dir.as_deref()) };
+        let seed = opts.faults.map_or(0, |(s, _)| s);
+        let mapped = map_frame_with_fault(&mut mapper, dataset, index, source, &mut labels, &mut seg, fault.map(|f| (f, seed)));
+        let Mapped { loaded, masks, report, ms } = match mapped {
+            Ok(m) => m,
+            Err(e) if opts.faults.is_some() => {
+                // A rejected frame leaves the map and the tracks as they were; the run goes on.
+                let record = FrameRecord { index, stem: fref.stem.clone(), fault, rejected: Some(format!("{e:#}")), ..FrameRecord::default() };
+                serde_json::to_writer(&mut jsonl, &record)?;
+                jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
+                records.push(record);
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
         let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
         let payload = mapper.encode_map(&mut wire_buf).map_err(|e| anyhow!("{}: encoding the map: {e}", fref.depth.display()))?;
         let checked = mapper.check(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{e}"))?;
@@ -397,6 +453,9 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             gaussians: report.gaussians,
             instances: masks.as_ref().map_or(0, |m| m.instances.len()),
             segmenter: segmenter.then_some("geometric"),
+            fault,
+            rejected: None,
+            max_track_step_m: report.max_track_step_m as f64,
             annotated: report.annotated,
             clusters: report.clusters,
             objects: report.objects,
@@ -429,8 +488,9 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         serde_json::to_writer(&mut jsonl, &record)?;
         jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
         bar.set_message(format!("{} Gaussians, {} planes, {:.1} ms", report.gaussians, report.planes, ms));
-        bar.inc(1);
         records.push(record);
+        }
+        bar.inc(1);
     }
     bar.finish_and_clear();
     jsonl.flush().with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
@@ -443,7 +503,11 @@ fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
-fn summarise(records: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> Summary {
+fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> Summary {
+    // Dropped and rejected frames have no map: they are counted, not averaged.
+    let records: Vec<FrameRecord> =
+        all.iter().filter(|r| r.rejected.is_none() && r.fault != Some(Fault::Dropped)).cloned().collect();
+    let records = &records[..];
     let ms = median(&records.iter().map(|r| r.ms).collect::<Vec<_>>());
     let mut pools: BTreeMap<String, PoolRecord> = BTreeMap::new();
     for r in records {
@@ -456,10 +520,14 @@ fn summarise(records: &[FrameRecord], variant: Variant, profile: ProfileChoice) 
     }
     Summary {
         frames: records.len(),
+        frames_rejected: all.iter().filter(|r| r.rejected.is_some()).count(),
+        frames_dropped: all.iter().filter(|r| r.fault == Some(Fault::Dropped)).count(),
+        max_track_step_m: records.iter().map(|r| r.max_track_step_m).fold(0.0, f64::max),
         variant: variant.name().to_owned(),
         profile: match profile {
             ProfileChoice::Host => "host",
             ProfileChoice::Mcu => "mcu",
+            ProfileChoice::Tiny => "tiny",
         }
         .to_owned(),
         hz: if ms > 0.0 { 1e3 / ms } else { 0.0 },

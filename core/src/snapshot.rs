@@ -1,0 +1,138 @@
+//! Mapper state snapshots: the state that carries from frame to frame (the frame counter and the superquadric
+//! tracks) encoded into a caller buffer, so a robot can persist it across a reset or power loss and resume with
+//! exactly the maps it would have produced.
+//!
+//! Layout: magic "M2S", version, then the state as postcard (f32 values bit-exact), then a CRC-32 of all that.
+//! Restoring validates everything first; a truncated, corrupted or foreign snapshot is refused.
+
+use serde::{Deserialize, Serialize};
+
+use crate::superquadric::Superquadric;
+use crate::track::Track;
+use crate::wire::{crc32, WireError};
+
+/// First bytes of a snapshot.
+pub const SNAPSHOT_MAGIC: [u8; 3] = *b"M2S";
+/// Snapshot format version.
+pub const SNAPSHOT_VERSION: u8 = 1;
+/// Largest snapshot, bytes, for `T` tracks: header and counters plus at most 96 bytes per track.
+pub const fn snapshot_bytes(tracks: usize) -> usize {
+    32 + 96 * tracks
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct Head {
+    magic: [u8; 3],
+    version: u8,
+    frames: u32,
+    tracker_frame: u32,
+    next_track_id: u16,
+    tracks: u16,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct SavedTrack {
+    scales: [f32; 3],
+    eps: [f32; 2],
+    centre: [f32; 3],
+    rotation: [[f32; 3]; 3],
+    id: u16,
+    class: u16,
+    last_frame: u32,
+    updates: u32,
+    last_jump_deg: f32,
+}
+
+/// The persistent state of a mapper.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct State {
+    /// Frames processed.
+    pub frames: u32,
+    /// The tracker's frame counter.
+    pub tracker_frame: u32,
+    /// The next track id.
+    pub next_track_id: u16,
+}
+
+fn map_err(e: postcard::Error) -> WireError {
+    match e {
+        postcard::Error::DeserializeUnexpectedEnd => WireError::Truncated,
+        postcard::Error::SerializeBufferFull => WireError::BufferTooSmall,
+        _ => WireError::Malformed,
+    }
+}
+
+/// Writes `state` and `tracks` into `buf`; returns the bytes written.
+pub fn write(buf: &mut [u8], state: &State, tracks: &[Track]) -> Result<usize, WireError> {
+    let head = Head {
+        magic: SNAPSHOT_MAGIC,
+        version: SNAPSHOT_VERSION,
+        frames: state.frames,
+        tracker_frame: state.tracker_frame,
+        next_track_id: state.next_track_id,
+        tracks: u16::try_from(tracks.len()).map_err(|_| WireError::TooManyPrimitives)?,
+    };
+    let mut used = postcard::to_slice(&head, buf).map_err(map_err)?.len();
+    for t in tracks {
+        let saved = SavedTrack {
+            scales: t.sq.scales,
+            eps: t.sq.eps,
+            centre: t.sq.centre,
+            rotation: t.sq.rotation,
+            id: t.id,
+            class: t.class,
+            last_frame: t.last_frame,
+            updates: t.updates,
+            last_jump_deg: t.last_jump_deg,
+        };
+        let rest = buf.get_mut(used..).ok_or(WireError::BufferTooSmall)?;
+        used += postcard::to_slice(&saved, rest).map_err(map_err)?.len();
+    }
+    let crc = crc32(buf.get(..used).ok_or(WireError::BufferTooSmall)?);
+    buf.get_mut(used..used + 4).ok_or(WireError::BufferTooSmall)?.copy_from_slice(&crc.to_le_bytes());
+    Ok(used + 4)
+}
+
+/// Validates a snapshot completely and only then calls `track` for each saved track (in order); returns the
+/// state. `max_tracks` is the caller's track capacity: a snapshot with more tracks is refused.
+pub fn read(bytes: &[u8], max_tracks: usize, mut track: impl FnMut(Track)) -> Result<State, WireError> {
+    let n = bytes.len();
+    if n < 4 {
+        return Err(WireError::Truncated);
+    }
+    let (body, tail) = bytes.split_at(n - 4);
+    let stored = match tail {
+        [a, b, c, d] => u32::from_le_bytes([*a, *b, *c, *d]),
+        _ => return Err(WireError::Truncated),
+    };
+    if crc32(body) != stored {
+        return Err(WireError::BadChecksum);
+    }
+    let parse = |f: &mut dyn FnMut(Track)| -> Result<State, WireError> {
+        let (head, mut rest): (Head, _) = postcard::take_from_bytes(body).map_err(map_err)?;
+        if head.magic != SNAPSHOT_MAGIC {
+            return Err(WireError::BadMagic);
+        }
+        if head.version != SNAPSHOT_VERSION {
+            return Err(WireError::WrongVersion(head.version));
+        }
+        if head.tracks as usize > max_tracks {
+            return Err(WireError::BadValue("track count"));
+        }
+        for _ in 0..head.tracks {
+            let (s, r): (SavedTrack, _) = postcard::take_from_bytes(rest).map_err(map_err)?;
+            rest = r;
+            let sq = Superquadric { scales: s.scales, eps: s.eps, centre: s.centre, rotation: s.rotation };
+            if !sq.is_within_bounds() || !s.last_jump_deg.is_finite() {
+                return Err(WireError::BadValue("track"));
+            }
+            f(Track { sq, id: s.id, class: s.class, last_frame: s.last_frame, updates: s.updates, last_jump_deg: s.last_jump_deg });
+        }
+        if !rest.is_empty() {
+            return Err(WireError::TrailingBytes);
+        }
+        Ok(State { frames: head.frames, tracker_frame: head.tracker_frame, next_track_id: head.next_track_id })
+    };
+    parse(&mut |_| {})?;
+    parse(&mut track)
+}
