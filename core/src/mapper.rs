@@ -311,15 +311,7 @@ impl<'s> Mapper<'s> {
             self.mask_hits.fill(bytemuck::Zeroable::zeroed());
             return;
         };
-        let stats = annotate::count_hits(
-            &checked.frame,
-            &masks,
-            self.voxels.as_slice(),
-            self.slots,
-            self.gaussians.as_slice(),
-            self.mask_hits,
-            &self.params,
-        );
+        let stats = self.count_mask_hits(&checked.frame, &masks);
         self.hit_overflows = stats.hit_overflows;
         self.report.ignored_instances = stats.ignored_instances;
         if self.params.variant.semantic_fusion() && self.params.mask_split_min_share < 1.0 {
@@ -335,22 +327,26 @@ impl<'s> Mapper<'s> {
             );
             self.report.mask_cuts = cuts;
             if cuts > 0 {
-                let again = annotate::count_hits(
-                    &checked.frame,
-                    &masks,
-                    self.voxels.as_slice(),
-                    self.slots,
-                    self.gaussians.as_slice(),
-                    self.mask_hits,
-                    &self.params,
-                );
-                self.hit_overflows += again.hit_overflows;
+                self.hit_overflows += self.count_mask_hits(&checked.frame, &masks).hit_overflows;
                 self.report.gaussians = self.gaussians.len() as u32;
             }
         }
         if self.params.variant.semantic_fusion() {
             self.report.annotated = annotate::annotate(&masks, self.gaussians.as_mut_slice(), self.mask_hits, &self.params);
         }
+    }
+
+    /// Fills the mask-hit table for the current Gaussians.
+    fn count_mask_hits(&mut self, frame: &Frame<'_>, masks: &MaskSet<'_>) -> annotate::AnnotateStats {
+        annotate::count_hits(
+            frame,
+            masks,
+            self.voxels.as_slice(),
+            self.slots,
+            self.gaussians.as_slice(),
+            self.mask_hits,
+            &self.params,
+        )
     }
 
     /// Stages 5–8: fusion, flat-plane separation, bounded planes, object sets (last step of [`Mapper::process`]).

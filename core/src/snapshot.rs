@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::superquadric::Superquadric;
 use crate::track::Track;
-use crate::wire::{crc32, WireError};
+use crate::wire::{checked_body, crc32, WireError};
 
 /// First bytes of a snapshot.
 pub const SNAPSHOT_MAGIC: [u8; 3] = *b"M2S";
@@ -96,18 +96,7 @@ pub fn write(buf: &mut [u8], state: &State, tracks: &[Track]) -> Result<usize, W
 /// Validates a snapshot completely and only then calls `track` for each saved track (in order); returns the
 /// state. `max_tracks` is the caller's track capacity: a snapshot with more tracks is refused.
 pub fn read(bytes: &[u8], max_tracks: usize, mut track: impl FnMut(Track)) -> Result<State, WireError> {
-    let n = bytes.len();
-    if n < 4 {
-        return Err(WireError::Truncated);
-    }
-    let (body, tail) = bytes.split_at(n - 4);
-    let stored = match tail {
-        [a, b, c, d] => u32::from_le_bytes([*a, *b, *c, *d]),
-        _ => return Err(WireError::Truncated),
-    };
-    if crc32(body) != stored {
-        return Err(WireError::BadChecksum);
-    }
+    let body = checked_body(bytes)?;
     let parse = |f: &mut dyn FnMut(Track)| -> Result<State, WireError> {
         let (head, mut rest): (Head, _) = postcard::take_from_bytes(body).map_err(map_err)?;
         if head.magic != SNAPSHOT_MAGIC {

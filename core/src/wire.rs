@@ -377,6 +377,23 @@ fn gmm_of(w: WireGmm) -> Result<MapGmm, WireError> {
     })
 }
 
+/// The bytes before a trailing little-endian CRC-32, once the CRC matches them (maps and snapshots).
+pub fn checked_body(bytes: &[u8]) -> Result<&[u8], WireError> {
+    let n = bytes.len();
+    if n < 4 {
+        return Err(WireError::Truncated);
+    }
+    let (body, tail) = bytes.split_at(n - 4);
+    let stored = match tail {
+        [a, b, c, d] => u32::from_le_bytes([*a, *b, *c, *d]),
+        _ => return Err(WireError::Truncated),
+    };
+    if crc32(body) != stored {
+        return Err(WireError::BadChecksum);
+    }
+    Ok(body)
+}
+
 /// One pass over a map's primitives (`f` = `None` validates only).
 fn walk<'a>(body: &'a [u8], mut f: Option<&mut dyn FnMut(Primitive<'a>)>) -> Result<Header, WireError> {
     let (header, mut rest): (Header, _) = take(body)?;
@@ -419,18 +436,7 @@ fn walk<'a>(body: &'a [u8], mut f: Option<&mut dyn FnMut(Primitive<'a>)>) -> Res
 /// Validates a whole map (checksum, header, every primitive, no trailing bytes) and only then calls `f` for
 /// each primitive in order. A map that fails anywhere yields its error and no primitive.
 pub fn decode<'a>(bytes: &'a [u8], mut f: impl FnMut(Primitive<'a>)) -> Result<Header, WireError> {
-    let n = bytes.len();
-    if n < 4 {
-        return Err(WireError::Truncated);
-    }
-    let (body, tail) = bytes.split_at(n - 4);
-    let stored = match tail {
-        [a, b, c, d] => u32::from_le_bytes([*a, *b, *c, *d]),
-        _ => return Err(WireError::Truncated),
-    };
-    if crc32(body) != stored {
-        return Err(WireError::BadChecksum);
-    }
+    let body = checked_body(bytes)?;
     walk(body, None)?;
     walk(body, Some(&mut f))
 }

@@ -63,7 +63,7 @@ fn with_map<R>(f: impl FnOnce(&[Primitive<'_>]) -> R) -> R {
 
 fn encode(prims: &[Primitive<'_>]) -> Vec<u8> {
     let mut buf = vec![0u8; 4096];
-    let n = wire::encode(&mut buf, 42, |sink| prims.iter().for_each(|p| sink(p))).unwrap();
+    let n = wire::encode(&mut buf, 42, |sink| prims.iter().for_each(&mut *sink)).unwrap();
     buf.truncate(n);
     buf
 }
@@ -116,7 +116,7 @@ fn round_trip_is_identical_and_within_a_millimetre() {
 #[test]
 fn golden_bytes() {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../fixtures/golden/wire_v1.hex");
-    let hex: String = with_map(|prims| encode(prims)).iter().map(|b| format!("{b:02x}")).collect();
+    let hex: String = with_map(encode).iter().map(|b| format!("{b:02x}")).collect();
     if std::env::var("M2SMAP_BLESS").is_ok_and(|v| v == "1") {
         std::fs::write(path, format!("{hex}\n")).unwrap();
     }
@@ -126,7 +126,7 @@ fn golden_bytes() {
 
 #[test]
 fn truncated_flipped_and_foreign_maps_are_errors() {
-    let bytes = with_map(|prims| encode(prims));
+    let bytes = with_map(encode);
     for n in 0..bytes.len() {
         assert!(wire::decode(&bytes[..n], |_| panic!("no primitive from a truncated map")).is_err(), "prefix {n}");
     }
@@ -154,7 +154,7 @@ fn truncated_flipped_and_foreign_maps_are_errors() {
 
 #[test]
 fn random_mutations_never_panic() {
-    let bytes = with_map(|prims| encode(prims));
+    let bytes = with_map(encode);
     let mut s = 0x2545_f491_4f6c_dd1du64;
     let mut rnd = move || {
         s ^= s << 13;
@@ -197,7 +197,7 @@ fn a_small_buffer_is_an_error() {
         for n in 0..full {
             let mut buf = vec![0u8; n];
             assert_eq!(
-                wire::encode(&mut buf, 42, |sink| prims.iter().for_each(|p| sink(p))),
+                wire::encode(&mut buf, 42, |sink| prims.iter().for_each(&mut *sink)),
                 Err(WireError::BufferTooSmall),
                 "buffer {n}"
             );

@@ -14,6 +14,31 @@ use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
 use m2smap::{budget, export, render, synth};
 use m2smap_core::{HostStorage, Mapper, Params};
 
+/// What `render` and `export` map a frame with.
+struct Session<'a, 'm> {
+    dataset: &'a Dataset,
+    mapper: &'a mut Mapper<'m>,
+    source: MaskSource<'a>,
+    labels: &'a mut LabelTable,
+    seg: &'a mut SegmenterBuffers,
+}
+
+/// Opens a dataset and runs `f` with a host-profile mapper and the frame's mask source.
+fn with_mapper(
+    dataset: &std::path::Path,
+    masks: Option<PathBuf>,
+    segmenter: Option<Segmenter>,
+    f: impl FnOnce(Session<'_, '_>) -> Result<()>,
+) -> Result<()> {
+    let d = Dataset::open(dataset, None)?;
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).map_err(|e| anyhow!("{e}"))?;
+    let masks_dir = mask_dir(&d.root, masks.as_deref());
+    let mut labels = LabelTable::default();
+    let mut seg = SegmenterBuffers::default();
+    f(Session { dataset: &d, mapper: &mut mapper, source: mask_source(&masks_dir, segmenter), labels: &mut labels, seg: &mut seg })
+}
+
 /// Mask files when they exist and no segmenter was asked for; the segmenter otherwise.
 fn mask_source(dir: &Option<PathBuf>, segmenter: Option<Segmenter>) -> MaskSource<'_> {
     match (dir, segmenter) {
@@ -211,33 +236,21 @@ fn execute(cli: Cli) -> Result<()> {
             println!("wrote {frames} firmware frames and expected.txt to {}", out.display());
             Ok(())
         }
-        Command::Render { dataset, frame, out, masks, segmenter } => {
-            let d = Dataset::open(&dataset, None)?;
-            let mut storage = bytemuck::zeroed_box::<HostStorage>();
-            let mut mapper = Mapper::new(&mut *storage, Params::default()).map_err(|e| anyhow!("{e}"))?;
-            let masks_dir = mask_dir(&d.root, masks.as_deref());
-            let source = mask_source(&masks_dir, segmenter);
-            let mut seg = SegmenterBuffers::default();
-            let m = map_frame(&mut mapper, &d, frame, source, &mut LabelTable::default(), &mut seg)?;
-            let view = m.loaded.view(&d.camera);
-            render::render_panels(&mapper, &view, m.masks.as_ref(), &out)?;
+        Command::Render { dataset, frame, out, masks, segmenter } => with_mapper(&dataset, masks, segmenter, |s| {
+            let m = map_frame(s.mapper, s.dataset, frame, s.source, s.labels, s.seg)?;
+            let view = m.loaded.view(&s.dataset.camera);
+            render::render_panels(s.mapper, &view, m.masks.as_ref(), &out)?;
             println!("frame {frame}: {} planes, {} SQs, {} GMMs -> {}", m.report.planes, m.report.sqs, m.report.gmms, out.display());
             Ok(())
-        }
-        Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter } => {
-            let d = Dataset::open(&dataset, None)?;
-            let mut storage = bytemuck::zeroed_box::<HostStorage>();
-            let mut mapper = Mapper::new(&mut *storage, Params::default()).map_err(|e| anyhow!("{e}"))?;
-            let masks_dir = mask_dir(&d.root, masks.as_deref());
-            let source = mask_source(&masks_dir, segmenter);
-            let mut seg = SegmenterBuffers::default();
-            let mut labels = LabelTable::default();
+        }),
+        Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter } => with_mapper(&dataset, masks, segmenter, |s| {
+            let d = s.dataset;
             let frames: Vec<usize> = if all_frames { (0..d.frames.len()).collect() } else { (0..=frame).collect() };
             if all_frames {
                 std::fs::create_dir_all(&ply).with_context(|| format!("{}: cannot create", ply.display()))?;
             }
             for k in frames {
-                map_frame(&mut mapper, &d, k, source, &mut labels, &mut seg)?;
+                map_frame(s.mapper, d, k, s.source, s.labels, s.seg)?;
                 if !all_frames && k != frame {
                     continue; // earlier frames only warm the superquadric tracks
                 }
@@ -247,12 +260,12 @@ fn execute(cli: Cli) -> Result<()> {
                     (false, _) => None,
                 };
                 let path = if all_frames { ply.join(format!("frame_{k:06}.ply")) } else { ply.clone() };
-                let v = export::vertices(&mapper, pose);
+                let v = export::vertices(s.mapper, pose);
                 export::write_ply(&path, &v)?;
                 println!("frame {k}: {} vertices -> {}", v.len(), path.display());
             }
             Ok(())
-        }
+        }),
         Command::Budget => {
             print!("{}", budget::table());
             Ok(())
