@@ -30,7 +30,7 @@ use crate::frame::Frame;
 use crate::linalg::{self, Moments, Sym3, Vec3};
 use crate::params::Params;
 use crate::pool::Bounded;
-use crate::supervoxel::{self, is_assigned, Supervoxel, Voxel, DROPPED};
+use crate::supervoxel::{self, Supervoxel, Voxel, DROPPED};
 
 /// One refined Gaussian component of C_g.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
@@ -427,7 +427,3 @@ fn two_means_partition(range: &mut [u16], voxels: &[Voxel], seeds: [Feature; 2],
     ok.then_some(lo).filter(|&m| m > 0 && m < range.len())
 }
 
-/// Whether a voxel's Gaussian label names a Gaussian.
-pub fn has_gaussian(v: &Voxel) -> bool {
-    is_assigned(v.gaussian)
-}

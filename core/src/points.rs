@@ -45,11 +45,16 @@ pub fn sample_threshold(rate: f32) -> u64 {
     }
 }
 
-/// Whether pixel index `i` is in the sample for `seed` and `threshold` ([`for_each_point`] inlines the same
-/// test with `mix32(seed)` hoisted).
+/// Whether pixel index `i` is in the sample for `seed` and `threshold`.
 #[inline]
 pub fn is_sampled(i: u32, seed: u32, threshold: u64) -> bool {
-    (mix32(i ^ mix32(seed)) as u64) < threshold
+    is_sampled_mixed(i, mix32(seed), threshold)
+}
+
+/// [`is_sampled`] with the seed already mixed (`mix32(seed)`), as the per-pixel loop uses it.
+#[inline]
+fn is_sampled_mixed(i: u32, mixed_seed: u32, threshold: u64) -> bool {
+    (mix32(i ^ mixed_seed) as u64) < threshold
 }
 
 /// Calls `f` for every sampled, in-range point of `frame`, in pixel order. The frame must have been validated.
@@ -63,7 +68,7 @@ pub fn for_each_point(frame: &Frame<'_>, params: &Params, mut f: impl FnMut(&Poi
     for ((v, row), rgb_row) in frame.depth.chunks_exact(w).enumerate().zip(rgb_rows) {
         let base = (v * w) as u32;
         for ((u, &raw), rgb) in row.iter().enumerate().zip(rgb_row.chunks_exact(3)) {
-            if raw < lo || raw > hi || (mix32((base + u as u32) ^ seed) as u64) >= threshold {
+            if raw < lo || raw > hi || !is_sampled_mixed(base + u as u32, seed, threshold) {
                 continue;
             }
             let z = frame.metres(raw);

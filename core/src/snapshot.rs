@@ -15,10 +15,6 @@ use crate::wire::{checked_body, crc32, WireError};
 pub const SNAPSHOT_MAGIC: [u8; 3] = *b"M2S";
 /// Snapshot format version.
 pub const SNAPSHOT_VERSION: u8 = 1;
-/// Largest snapshot, bytes, for `T` tracks: header and counters plus at most 96 bytes per track.
-pub const fn snapshot_bytes(tracks: usize) -> usize {
-    32 + 96 * tracks
-}
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct Head {
