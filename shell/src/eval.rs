@@ -62,3 +62,41 @@ pub fn semantic_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>, referen
     m.a_s = (m.multi_gaussian_clusters > 0).then(|| consistent as f64 / m.multi_gaussian_clusters as f64);
     m
 }
+
+/// Reconstruction accuracy of one frame's map (SPEC §4), metres.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ReconstructionMetrics {
+    /// G2R RMSE: √mean over the reconstructed samples P̂ of the squared distance to the nearest observed point.
+    pub g2r_rmse_m: f64,
+    /// R2G RMSE: √mean over the observed points P of the squared distance to the nearest reconstructed sample.
+    pub r2g_rmse_m: f64,
+    /// |P|.
+    pub observed: usize,
+    /// |P̂|.
+    pub reconstructed: usize,
+}
+
+/// RMS of nearest-neighbour distances from `queries` to `cloud` (kd-tree over `cloud`); `None` when either is empty.
+fn rms_nearest(queries: &[[f32; 3]], cloud: &[[f32; 3]]) -> Option<f64> {
+    if queries.is_empty() || cloud.is_empty() {
+        return None;
+    }
+    let tree: kiddo::ImmutableKdTree<f32, 3> = kiddo::ImmutableKdTree::new_from_slice(cloud);
+    let sum: f64 = queries.iter().map(|q| tree.nearest_one::<kiddo::SquaredEuclidean>(q).distance as f64).sum();
+    Some((sum / queries.len() as f64).sqrt())
+}
+
+/// G2R and R2G of the last frame: P = the sampled, range-filtered points the mapper consumed; P̂ = the
+/// reconstruction samples of every primitive of its map. `None` when the map or the frame is empty.
+pub fn reconstruction_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>) -> Option<ReconstructionMetrics> {
+    let mut observed = Vec::new();
+    mapper.for_each_labelled_point(checked, |p, _| observed.push(p.xyz));
+    let mut reconstructed = Vec::new();
+    mapper.for_each_primitive(|prim| prim.for_each_sample(|x| reconstructed.push(x)));
+    Some(ReconstructionMetrics {
+        g2r_rmse_m: rms_nearest(&reconstructed, &observed)?,
+        r2g_rmse_m: rms_nearest(&observed, &reconstructed)?,
+        observed: observed.len(),
+        reconstructed: reconstructed.len(),
+    })
+}

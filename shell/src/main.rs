@@ -200,7 +200,7 @@ fn execute(cli: Cli) -> Result<()> {
             println!(
                 "{} frames ({}, {} profile): {:.0} points, {:.0} voxels, {:.1} supervoxels, {:.1} Gaussians, \
                  {:.1} clusters, {:.2} planes, {:.2} SQs, {:.1} GMMs per frame; {:.0} B/frame ({:.1} B/primitive); \
-                 R_c {:.2}, N_adh {:.3}, J_sq {:.1} deg; \
+                 G2R {:.4} m, R2G {:.4} m; R_c {:.2}, N_adh {:.3}, J_sq {:.1} deg; \
                  median {:.2} ms ({:.0} Hz); {} overflow events -> {}",
                 s.frames,
                 s.variant,
@@ -215,6 +215,8 @@ fn execute(cli: Cli) -> Result<()> {
                 s.primitives.gmm.unwrap_or(0.0),
                 s.payload_bytes.unwrap_or(0.0),
                 s.bytes_per_primitive.unwrap_or(0.0),
+                s.g2r_rmse_m.unwrap_or(0.0),
+                s.r2g_rmse_m.unwrap_or(0.0),
                 s.r_c.unwrap_or(0.0),
                 s.n_adh.unwrap_or(0.0),
                 s.j_sq_deg.unwrap_or(0.0),

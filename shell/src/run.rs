@@ -441,6 +441,7 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             (None, Some(m)) => m.id_at(u, v),
             (None, None) => 0,
         });
+        let reconstruction = eval::reconstruction_metrics(&mapper, &checked);
         let gmm = report.gmms as f64;
         let sq = params.variant.superquadrics().then_some(report.sqs as f64);
         let record = FrameRecord {
@@ -476,8 +477,8 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             sq_jump_sum_deg: report.sq_jump_sum_deg as f64,
             sq_jumps: report.sq_jumps,
             payload_bytes: Some(payload as f64),
-            g2r_rmse_m: None,
-            r2g_rmse_m: None,
+            g2r_rmse_m: reconstruction.map(|r| r.g2r_rmse_m),
+            r2g_rmse_m: reconstruction.map(|r| r.r2g_rmse_m),
             r_c: Some(report.r_c as f64),
             a_s: semantic.a_s,
             n_adh: Some(semantic.n_adh as f64),
@@ -554,8 +555,8 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
             });
             (prims > 0.0).then(|| bytes / prims)
         },
-        g2r_rmse_m: None,
-        r2g_rmse_m: None,
+        g2r_rmse_m: mean_of(records.iter().map(|r| r.g2r_rmse_m)),
+        r2g_rmse_m: mean_of(records.iter().map(|r| r.r2g_rmse_m)),
         r_c: mean_of(records.iter().map(|r| r.r_c)),
         a_s: mean_of(records.iter().map(|r| r.a_s)),
         n_adh: mean_of(records.iter().map(|r| r.n_adh)),
