@@ -62,26 +62,25 @@ pub struct AnnotateStats {
     pub ignored_instances: u32,
 }
 
-/// Looks up or inserts the entry for `key`; `None` when the table is full.
-fn entry(hits: &mut [MaskHit], key: u32) -> Option<&mut MaskHit> {
+/// Position of `key` in the table, or of the free slot where it would go; `None` when the table is full.
+fn slot_of(hits: &[MaskHit], key: u32) -> Option<usize> {
     let n = hits.len();
     let mut pos = crate::pool::bucket(key, n);
-    let mut found = None;
     for _ in 0..n {
-        match hits.get(pos) {
-            Some(h) if h.key == key || h.key == 0 => {
-                found = Some(pos);
-                break;
-            }
-            Some(_) => {}
-            None => break,
+        if hits.get(pos).is_some_and(|h| h.key == key || h.key == 0) {
+            return Some(pos);
         }
         pos += 1;
         if pos == n {
             pos = 0;
         }
     }
-    let h = hits.get_mut(found?)?;
+    None
+}
+
+/// Looks up or inserts the entry for `key`; `None` when the table is full.
+fn entry(hits: &mut [MaskHit], key: u32) -> Option<&mut MaskHit> {
+    let h = hits.get_mut(slot_of(hits, key)?)?;
     h.key = key;
     Some(h)
 }
@@ -89,21 +88,7 @@ fn entry(hits: &mut [MaskHit], key: u32) -> Option<&mut MaskHit> {
 /// Points of Gaussian `g` inside instance `k`, from a filled table.
 pub fn hits_of(hits: &[MaskHit], g: usize, k: usize) -> u32 {
     let key = MaskHit::key_of(g, k);
-    let n = hits.len();
-    let mut pos = crate::pool::bucket(key, n);
-    for _ in 0..n {
-        match hits.get(pos) {
-            Some(h) if h.key == key => return h.count,
-            Some(h) if h.key == 0 => return 0,
-            Some(_) => {}
-            None => return 0,
-        }
-        pos += 1;
-        if pos == n {
-            pos = 0;
-        }
-    }
-    0
+    slot_of(hits, key).and_then(|i| hits.get(i)).filter(|h| h.key == key).map_or(0, |h| h.count)
 }
 
 /// Whether instance `k` is a candidate at all (score threshold).

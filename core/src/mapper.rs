@@ -610,10 +610,7 @@ impl<'s> Mapper<'s> {
 
     /// The voxel of the last frame that a camera-frame point falls into (any point, sampled or not).
     pub fn voxel_at(&self, p: Vec3) -> Option<&Voxel> {
-        let voxels = self.voxels.as_slice();
-        supervoxel::voxel_key(p, self.params.voxel_resolution)
-            .and_then(|k| supervoxel::find_voxel(voxels, self.slots, k))
-            .and_then(|i| voxels.get(i))
+        supervoxel::voxel_at(self.voxels.as_slice(), self.slots, p, self.params.voxel_resolution).map(|(_, v)| v)
     }
 
     /// Bounded planes of the last frame.

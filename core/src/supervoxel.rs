@@ -201,6 +201,13 @@ pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl
     }
 }
 
+/// The index and record of the voxel a camera-frame point (metres) falls into, if that voxel is occupied.
+#[inline]
+pub fn voxel_at<'v>(voxels: &'v [Voxel], slots: &[u16], p: Vec3, resolution: f32) -> Option<(usize, &'v Voxel)> {
+    let i = voxel_key(p, resolution).and_then(|k| find_voxel(voxels, slots, k))?;
+    voxels.get(i).map(|v| (i, v))
+}
+
 /// Calls `f(point, voxel)` for every sampled point of `frame` with the index and record of the voxel it fell
 /// into (`None` when it found no voxel: pool full or outside the key range). The one way every stage after
 /// voxelisation revisits the points.
@@ -213,8 +220,7 @@ pub fn for_each_voxel_point(
 ) {
     let r = params.voxel_resolution;
     points::for_each_point(frame, params, |p| {
-        let v = voxel_key(p.xyz, r).and_then(|k| find_voxel(voxels, slots, k)).and_then(|i| voxels.get(i).map(|v| (i, v)));
-        f(p, v);
+        f(p, voxel_at(voxels, slots, p.xyz, r));
     });
 }
 
