@@ -395,11 +395,14 @@ impl<'s> Mapper<'s> {
             } else {
                 None
             };
+            // MMQ: a cluster that is not a plane and is large enough for a quadric is an object by geometry.
+            let geometric_object =
+                params.variant.geometric_objects() && plane.is_none() && points >= params.sq_min_points;
             for &i in members {
                 if let Some(g) = gaussians.get_mut(i as usize) {
                     (g.role, g.owner) = match plane {
                         Some(k) if g.instance == 0 => (ROLE_PLANE, k as u8),
-                        _ if g.instance != 0 => (ROLE_OBJECT, 0),
+                        _ if g.instance != 0 || geometric_object => (ROLE_OBJECT, 0),
                         _ => (ROLE_RESIDUAL, 0),
                     };
                 }
@@ -416,7 +419,8 @@ impl<'s> Mapper<'s> {
             self.planes.as_mut_slice(),
             &params,
         );
-        objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects);
+        let by_cluster = params.variant.geometric_objects();
+        objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects, |g| if by_cluster { g.cluster } else { g.instance });
         let count = |role| self.gaussians.as_slice().iter().filter(|g| g.role == role).count() as u32;
         self.report.plane_gaussians = count(ROLE_PLANE);
         self.report.object_gaussians = count(ROLE_OBJECT);
@@ -640,7 +644,9 @@ impl<'s> Mapper<'s> {
             }));
         }
         for o in self.objects.as_slice().iter().filter(|o| o.sq_state == SQ_ACCEPTED) {
-            f(&Primitive::Sq(MapSq { sq: o.sq, instance: o.instance, class: o.class, score: o.score, track: o.track }));
+            // Objects allocated by geometry (MMQ) carry no instance: their key is a cluster id.
+            let instance = if self.params.variant.geometric_objects() { 0 } else { o.instance };
+            f(&Primitive::Sq(MapSq { sq: o.sq, instance, class: o.class, score: o.score, track: o.track }));
         }
         for g in self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)) {
             f(&Primitive::Gmm(MapGmm {

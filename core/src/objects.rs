@@ -23,7 +23,7 @@ pub const SQ_ACCEPTED: u8 = 2;
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 #[repr(C)]
 pub struct Object {
-    /// Instance id j.
+    /// Instance id j (for objects allocated by geometry, MMQ: the id of its fused cluster).
     pub instance: u16,
     /// Category label ℓ.
     pub class: u16,
@@ -52,17 +52,18 @@ pub struct Object {
     pub track: u16,
 }
 
-/// Groups the object-role Gaussians by instance id, in order of first appearance, and marks each with its
-/// object index (`owner`).
-pub fn group_objects(gaussians: &mut [Gaussian], objects: &mut Bounded<'_, Object>) {
+/// Groups the object-role Gaussians by `key` (the instance id; for objects allocated by geometry, the fused
+/// cluster id), in order of first appearance, and marks each with its object index (`owner`).
+pub fn group_objects(gaussians: &mut [Gaussian], objects: &mut Bounded<'_, Object>, key: impl Fn(&Gaussian) -> u16) {
     objects.clear();
     for g in gaussians.iter_mut().filter(|g| g.role == ROLE_OBJECT) {
         g.owner = u8::MAX;
-        let k = match objects.as_slice().iter().position(|o| o.instance == g.instance) {
+        let id = key(g);
+        let k = match objects.as_slice().iter().position(|o| o.instance == id) {
             Some(k) => k,
             None => {
                 let mut o = Object::zeroed();
-                o.instance = g.instance;
+                o.instance = id;
                 o.class = g.class;
                 o.score = g.score;
                 o.bbox_min = [f32::MAX; 3];

@@ -51,9 +51,21 @@ impl Variant {
         matches!(self, Variant::Full | Variant::Wsqa)
     }
 
-    /// Whether semantic objects are fitted with superquadrics and tracked.
+    /// Whether objects are fitted with superquadrics and tracked (semantic objects, or for MMQ the objects
+    /// allocated by geometry).
     pub fn superquadrics(self) -> bool {
-        matches!(self, Variant::Full | Variant::Pmsao | Variant::Wsqa)
+        matches!(self, Variant::Full | Variant::Pmsao | Variant::Wsqa | Variant::Mmq)
+    }
+
+    /// Whether objects are allocated by geometry rather than by instance (MMQ): every fused cluster that is not
+    /// a plane and holds at least `sq_min_points` points is one object.
+    pub fn geometric_objects(self) -> bool {
+        matches!(self, Variant::Mmq)
+    }
+
+    /// Whether the quadrics are ellipsoids (ε1 = ε2 = 1 fixed, MMQ) rather than superquadrics.
+    pub fn ellipsoids_only(self) -> bool {
+        matches!(self, Variant::Mmq)
     }
 
     /// Whether superquadric measurements are aligned with their track before smoothing (not in WSQA).

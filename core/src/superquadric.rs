@@ -271,7 +271,10 @@ fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2], deepen: bool) 
 }
 
 /// Initial shape exponents of the candidates: box-like, cylinder-like (round cross-section), ellipsoid.
-const INITIAL_EPS: [[f32; 2]; 3] = [[0.3, 0.3], [0.3, 1.0], [1.0, 1.0]];
+const INITIAL_EPS: [[f32; 2]; 3] = [[0.3, 0.3], [0.3, 1.0], ELLIPSOID_EPS];
+
+/// The shape exponents of an ellipsoid.
+pub const ELLIPSOID_EPS: [f32; 2] = [1.0, 1.0];
 
 /// LM iterations every initial guess gets before the best are chosen.
 const SCREEN_ITERS: u32 = 12;
@@ -333,13 +336,15 @@ fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: 
             }
             *m = model(&t, r0);
         }
+        // Ellipsoids (MMQ): ε1 = ε2 = 1 stay fixed, their Jacobian columns are zero so the step leaves them.
+        let shape_columns = if params.variant.ellipsoids_only() { 3 } else { 5 };
         let mut jtj = [[0.0f32; SQ_PARAMS]; SQ_PARAMS];
         let mut jtr = [0.0f32; SQ_PARAMS];
         for &p in points {
             let l = base.local(p);
             let (r, n) = base.distance_at(l);
             let mut row = [0.0f32; SQ_PARAMS];
-            for ((d, m), h) in row.iter_mut().zip(&perturbed).zip(&steps) {
+            for ((d, m), h) in row.iter_mut().zip(&perturbed).zip(&steps).take(shape_columns) {
                 *d = (m.distance_at(l).0 - r) / h;
             }
             let dt = linalg::scale(linalg::mat_vec(&base.rotation, n), -1.0);
@@ -434,6 +439,9 @@ pub fn fit(points: &[Vec3], pca: &Mat3, bbox_min: Vec3, bbox_max: Vec3, params: 
     }; 18];
     let all = frames.iter().flat_map(|f| INITIAL_EPS.iter().flat_map(move |e| [(f, *e, false), (f, *e, true)]));
     for (run, (r0, eps, deepen)) in runs.iter_mut().zip(all) {
+        if params.variant.ellipsoids_only() && eps != ELLIPSOID_EPS {
+            continue; // MMQ fits ellipsoids only: the other shape guesses stay at infinite cost.
+        }
         run.base = *r0;
         run.theta = initial(points, mean, r0, eps, deepen);
         run.cost = cost(&model(&run.theta, r0), points, params.sq_scale_prior);
@@ -462,7 +470,7 @@ pub fn refine(points: &[Vec3], start: &Superquadric, bbox_min: Vec3, bbox_max: V
     }
     let mut theta = [0.0; SQ_PARAMS];
     theta[..3].copy_from_slice(&start.scales);
-    theta[3..5].copy_from_slice(&start.eps);
+    theta[3..5].copy_from_slice(if params.variant.ellipsoids_only() { &ELLIPSOID_EPS } else { &start.eps });
     theta[5..8].copy_from_slice(&start.centre);
     clamp(&mut theta);
     let mut run = Run {

@@ -111,3 +111,38 @@ fn fits_known_shapes_from_their_visible_half() {
     assert!(ok >= 0.9, "only {ok:.2} of random cases within 1 cm / 10 %");
     assert!(results.iter().filter(|r| r.2).count() as f64 >= 0.9 * results.len() as f64, "fits must be accepted");
 }
+
+/// MMQ fits ellipsoids only: ε stays exactly (1, 1) for every shape, ellipsoids are recovered like in the full
+/// fit, and a box-like shape is fitted no better than an ellipsoid can (its E_sq exceeds the full fit's).
+#[test]
+fn mmq_fits_ellipsoids_only() {
+    let full = Params::default();
+    let mmq = Params { variant: m2smap_core::Variant::Mmq, ..Params::default() };
+    let mut rng = Rng(0x2545f4914f6cdd1d);
+    let (mut ellipsoids_ok, mut boxes_worse) = (0, 0);
+    for case in 0..20 {
+        let is_box = case % 2 == 1;
+        let truth = random_sq(&mut rng, if is_box { [0.15, 0.15] } else { [1.0, 1.0] });
+        let all = visible_points(&truth, 1500, 0.002, &mut rng);
+        let frame = pca(&all);
+        let (lo, hi) = all.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), &p| {
+            (linalg::min_elem(lo, p), linalg::max_elem(hi, p))
+        });
+        let sample: Vec<Vec3> = all.iter().step_by(all.len() / 100).copied().take(100).collect();
+        let f = fit(&sample, &frame, lo, hi, &mmq).expect("enough points");
+        assert_eq!(f.sq.eps, [1.0, 1.0], "case {case}: MMQ must keep ε1 = ε2 = 1");
+        if is_box {
+            let g = fit(&sample, &frame, lo, hi, &full).expect("enough points");
+            boxes_worse += (f.error > g.error) as u32;
+        } else {
+            let centre_err = linalg::norm(linalg::sub(f.sq.centre, truth.centre));
+            let (mut a, mut b) = (f.sq.scales, truth.scales);
+            a.sort_by(f32::total_cmp);
+            b.sort_by(f32::total_cmp);
+            let axis_err = (0..3).map(|k| (a[k] - b[k]).abs() / b[k]).fold(0.0f32, f32::max);
+            ellipsoids_ok += (centre_err <= 0.01 && axis_err <= 0.10 && f.accepted) as u32;
+        }
+    }
+    assert!(ellipsoids_ok >= 9, "only {ellipsoids_ok}/10 ellipsoids recovered within 1 cm / 10 %");
+    assert!(boxes_worse >= 9, "only {boxes_worse}/10 boxes fitted worse by an ellipsoid than by a superquadric");
+}
