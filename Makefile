@@ -9,7 +9,7 @@ FW_FRAMES := $(CURDIR)/target/fw-frames
 FW_ELF := firmware/target/$(TARGET_MCU)/release/m2smap-firmware
 QEMU := timeout 600 qemu-system-arm -machine mps2-an500 -nographic -semihosting-config enable=on,target=native -icount shift=0
 
-.PHONY: demo test bench core-nostd budget firmware firmware-check fuzz
+.PHONY: demo test bench eval core-nostd budget firmware firmware-check fuzz
 FUZZ_SECONDS ?= 600
 FUZZ_TARGETS := wire_decode mapper_frame masks_parse lists_parse
 
@@ -39,6 +39,18 @@ core-nostd:
 ## Median time per stage on the cabinet and redkitchen frames (../shared/data) and on synthetic frames.
 bench:
 	$(CARGO) bench -p m2smap --bench stages
+
+## The evaluation suite: every variant on the synthetic scenes (perfect masks, ground truth) and the real cabinet
+## frames; writes $(EVAL)/report.md (Tables I and II) and $(EVAL)/comparison.svg/.png.
+EVAL := target/eval
+EVAL_SCENES ?= tabletop shelf desk
+EVAL_FRAMES ?= 20
+eval:
+	$(CARGO) build --release -p m2smap
+	for s in $(EVAL_SCENES); do ./target/release/m2smap synth --scene $$s --frames $(EVAL_FRAMES) --seed 1 --out $(EVAL)/data/$$s; done
+	./target/release/m2smap eval $(addprefix $(EVAL)/data/,$(EVAL_SCENES)) \
+		$$([ -d $(SHARED)/tum_fr3_cabinet ] && echo $(SHARED)/tum_fr3_cabinet || echo "skipping $(SHARED)/tum_fr3_cabinet (not found)" >&2) \
+		--out $(EVAL)
 
 ## Print the mcu memory table (paste into memory_budget.md when pools change).
 budget:

@@ -13,5 +13,6 @@ pub mod firmware;
 pub mod fuzzing;
 pub mod masks;
 pub mod render;
+pub mod report;
 pub mod run;
 pub mod synth;

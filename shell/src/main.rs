@@ -11,7 +11,7 @@ use anyhow::Context;
 use m2smap::dataset::Dataset;
 use m2smap::masks::{mask_dir, LabelTable};
 use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
-use m2smap::{budget, export, render, synth};
+use m2smap::{budget, export, render, report, synth};
 use m2smap_core::{HostStorage, Mapper, Params};
 
 /// What `render` and `export` map a frame with.
@@ -151,6 +151,19 @@ enum Command {
         #[arg(long, value_enum)]
         segmenter: Option<Segmenter>,
     },
+    /// Run every variant on every dataset; writes DIR/report.md (the paper's Tables I and II), the comparison
+    /// figure DIR/comparison.svg and .png, and one run folder per dataset and variant.
+    Eval {
+        /// Dataset folders (TUM or 7-Scenes).
+        #[arg(required = true)]
+        datasets: Vec<PathBuf>,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Process at most N frames of each dataset.
+        #[arg(long)]
+        frames: Option<usize>,
+    },
     /// Print the memory budget table of the mcu profile.
     Budget,
     /// Export frames for the firmware image, with the host's map digests (expected.txt).
@@ -225,6 +238,12 @@ fn execute(cli: Cli) -> Result<()> {
                 s.overflow_events,
                 out.join("summary.json").display()
             );
+            Ok(())
+        }
+        Command::Eval { datasets, out, frames } => {
+            let opts = report::EvalOptions { datasets, out: out.clone(), frames, verbose: true };
+            report::evaluate(&opts)?;
+            println!("report: {}", out.join("report.md").display());
             Ok(())
         }
         Command::Synth { scene, frames, seed, no_noise, out } => {

@@ -1,0 +1,341 @@
+//! The evaluation suite (`m2smap eval`): every variant of SPEC §3 on every dataset, and `report.md` with the
+//! paper's Table I (primitive composition), Table II (ablation) and the comparison figure (G2R, R2G and payload
+//! per dataset and method) as SVG and PNG.
+//!
+//! Every number in the report is read from the runs' `summary.json` (written by [`crate::run::run`] into
+//! `OUT/<dataset>/<variant>/`); nothing is a constant.
+
+use std::fmt::Write as _;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use m2smap_core::Variant;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::run::{run, ProfileChoice, RunOptions, Summary};
+
+/// Options of `m2smap eval`.
+#[derive(Debug, Clone)]
+pub struct EvalOptions {
+    /// Dataset folders (TUM or 7-Scenes), each run with every variant.
+    pub datasets: Vec<PathBuf>,
+    /// Output folder: `report.md`, `comparison.svg`, `comparison.png` and one run folder per dataset and variant.
+    pub out: PathBuf,
+    /// Process at most this many frames of each dataset.
+    pub frames: Option<usize>,
+    /// Print a line per run.
+    pub verbose: bool,
+}
+
+/// The runs of one dataset, one summary per variant in [`Variant::ALL`] order.
+#[derive(Debug, Clone)]
+pub struct DatasetRuns {
+    /// Short name used in the tables (the folder name, made unique).
+    pub name: String,
+    /// The dataset folder.
+    pub path: PathBuf,
+    /// `(variant, summary)` for every variant.
+    pub runs: Vec<(Variant, Summary)>,
+}
+
+impl DatasetRuns {
+    /// The summary of one variant.
+    pub fn summary(&self, v: Variant) -> Option<&Summary> {
+        self.runs.iter().find(|(w, _)| *w == v).map(|(_, s)| s)
+    }
+}
+
+/// The methods of Table I and the comparison figure: M2-SMap and the multi-model baselines.
+pub const COMPARED: [Variant; 4] = [Variant::Full, Variant::Mmq, Variant::Mmp, Variant::Mmog];
+/// The rows of Table II (the ablation).
+pub const ABLATION: [Variant; 3] = [Variant::Full, Variant::Pmsao, Variant::Wsqa];
+
+/// The name a method has in the paper's tables.
+pub fn method_name(v: Variant) -> &'static str {
+    match v {
+        Variant::Full => "M2-SMap",
+        Variant::Pmsao => "PMSAO",
+        Variant::Wsqa => "WSQA",
+        Variant::Mmog => "MMOG",
+        Variant::Mmp => "MMP",
+        Variant::Mmq => "MMQ",
+    }
+}
+
+/// Unique table names for the dataset folders (folder name; `-2`, `-3` … on repeats).
+fn dataset_names(paths: &[PathBuf]) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    for p in paths {
+        let base = p.file_name().map_or_else(|| "dataset".to_string(), |n| n.to_string_lossy().into_owned());
+        let mut name = base.clone();
+        let mut k = 2;
+        while names.contains(&name) {
+            name = format!("{base}-{k}");
+            k += 1;
+        }
+        names.push(name);
+    }
+    names
+}
+
+/// Runs every variant on every dataset and writes the report; returns the runs.
+pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
+    if opts.datasets.is_empty() {
+        bail!("eval needs at least one dataset folder");
+    }
+    fs::create_dir_all(&opts.out).with_context(|| format!("{}: cannot create", opts.out.display()))?;
+    let mut all = Vec::new();
+    for (path, name) in opts.datasets.iter().zip(dataset_names(&opts.datasets)) {
+        let mut runs = Vec::new();
+        for v in Variant::ALL {
+            let run_opts = RunOptions {
+                dataset: path.clone(),
+                out: opts.out.join(&name).join(v.name()),
+                variant: Some(v),
+                frames: opts.frames,
+                config: None,
+                camera: None,
+                profile: ProfileChoice::Host,
+                masks: None,
+                segmenter: None,
+                faults: None,
+                progress: false,
+            };
+            let s = run(&run_opts)?;
+            if opts.verbose {
+                println!(
+                    "{name} {:>5}: {} frames, {:.2} primitives, G2R {:.4} m, {:.0} B, {:.1} ms",
+                    v.name(),
+                    s.frames,
+                    s.primitives.total.unwrap_or(0.0),
+                    s.g2r_rmse_m.unwrap_or(0.0),
+                    s.payload_bytes.unwrap_or(0.0),
+                    s.ms_per_frame_median
+                );
+            }
+            runs.push((v, s));
+        }
+        all.push(DatasetRuns { name, path: path.clone(), runs });
+    }
+    write_report(&opts.out, &all)?;
+    Ok(all)
+}
+
+/// A number as the tables print it (3 decimals; "–" when missing).
+pub fn cell(x: Option<f64>) -> String {
+    x.map_or_else(|| "–".to_string(), |x| format!("{x:.3}"))
+}
+
+/// Lowest mean total primitive count of the compared methods on a dataset (the bold one), with its method.
+fn best_total(d: &DatasetRuns) -> Option<(Variant, f64)> {
+    COMPARED
+        .iter()
+        .filter_map(|&v| d.summary(v).and_then(|s| s.primitives.total).map(|t| (v, t)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+/// Writes `report.md`, `comparison.svg` and `comparison.png` into `out`.
+pub fn write_report(out: &Path, datasets: &[DatasetRuns]) -> Result<()> {
+    let md = report_markdown(datasets);
+    let path = out.join("report.md");
+    fs::write(&path, md).with_context(|| format!("{}: cannot write", path.display()))?;
+    register_font()?;
+    let svg = out.join("comparison.svg");
+    draw_comparison(SVGBackend::new(&svg, FIGURE_SIZE).into_drawing_area(), datasets)
+        .with_context(|| format!("{}: cannot draw", svg.display()))?;
+    let png = out.join("comparison.png");
+    draw_comparison(BitMapBackend::new(&png, FIGURE_SIZE).into_drawing_area(), datasets)
+        .with_context(|| format!("{}: cannot draw", png.display()))?;
+    Ok(())
+}
+
+/// The text of `report.md`.
+pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# m2smap evaluation report\n");
+    let _ = writeln!(
+        s,
+        "Every variant of SPEC §3 on every dataset (host profile, release build, single thread). Numbers are means \
+         over frames from each run's `summary.json` (`<dataset>/<variant>/summary.json` beside this file); T is the \
+         median core time per frame.\n"
+    );
+    let _ = writeln!(s, "| dataset | frames | folder |\n|---|---:|---|");
+    for d in datasets {
+        let frames = d.runs.first().map_or(0, |(_, s)| s.frames);
+        let _ = writeln!(s, "| {} | {} | `{}` |", d.name, frames, d.path.display());
+    }
+
+    let _ = writeln!(s, "\n## Table I — average primitive composition per frame\n");
+    let _ = writeln!(
+        s,
+        "Q = quadrics (MMQ's ellipsoids, allocated by geometry). The lowest total per dataset is in bold.\n"
+    );
+    let _ = writeln!(s, "| Method | Dataset | Plane | SQ | GMM | Q | Total |\n|---|---|---:|---:|---:|---:|---:|");
+    for v in COMPARED {
+        for d in datasets {
+            let Some(x) = d.summary(v) else { continue };
+            let p = x.primitives;
+            let (sq, q) = if v.ellipsoids_only() { (Some(0.0), p.sq) } else { (p.sq, Some(0.0)) };
+            let total = cell(p.total);
+            let bold = best_total(d).is_some_and(|(b, _)| b == v);
+            let total = if bold { format!("**{total}**") } else { total };
+            let _ = writeln!(s, "| {} | {} | {} | {} | {} | {} | {} |", method_name(v), d.name, cell(p.plane), cell(sq), cell(p.gmm), cell(q), total);
+        }
+    }
+    let _ = writeln!(s);
+    for d in datasets {
+        let full = d.summary(Variant::Full).and_then(|x| x.primitives.total);
+        let baseline = COMPARED
+            .iter()
+            .filter(|&&v| v != Variant::Full)
+            .filter_map(|&v| d.summary(v).and_then(|x| x.primitives.total).map(|t| (v, t)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let (Some(f), Some((b, t))) = (full, baseline) {
+            let change = if t > 0.0 { 100.0 * (t - f) / t } else { 0.0 };
+            let verdict = if f <= t { "fewest primitives" } else { "NOT the fewest primitives" };
+            let _ = writeln!(
+                s,
+                "- {}: M2-SMap {f:.3} vs best baseline {} {t:.3} → {change:+.1} % ({verdict}).",
+                d.name,
+                method_name(b)
+            );
+        }
+    }
+
+    let _ = writeln!(s, "\n## Table II — ablation\n");
+    let _ = writeln!(s, "| Method | Dataset | R_c | T (ms) | A_s | N_adh | J_sq (°) |\n|---|---|---:|---:|---:|---:|---:|");
+    for v in ABLATION {
+        for d in datasets {
+            let Some(x) = d.summary(v) else { continue };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                method_name(v),
+                d.name,
+                cell(x.r_c),
+                cell(Some(x.ms_per_frame_median)),
+                cell(x.a_s),
+                cell(x.n_adh),
+                cell(x.j_sq_deg)
+            );
+        }
+    }
+
+    let _ = writeln!(s, "\n## Reconstruction and payload\n");
+    let _ = writeln!(s, "![comparison](comparison.svg)\n");
+    let _ = writeln!(s, "| Method | Dataset | G2R RMSE (m) | R2G RMSE (m) | payload (B) | B/primitive | Hz |\n|---|---|---:|---:|---:|---:|---:|");
+    for v in Variant::ALL {
+        for d in datasets {
+            let Some(x) = d.summary(v) else { continue };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                method_name(v),
+                d.name,
+                cell(x.g2r_rmse_m),
+                cell(x.r2g_rmse_m),
+                cell(x.payload_bytes),
+                cell(x.bytes_per_primitive),
+                cell(Some(x.hz))
+            );
+        }
+    }
+    s
+}
+
+/// Size of the comparison figure, pixels.
+pub const FIGURE_SIZE: (u32, u32) = (1500, 500);
+
+/// Registers the embedded DejaVu Sans as plotters' "sans-serif" (no system fonts needed).
+fn register_font() -> Result<()> {
+    plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular())
+        .map_err(|_| anyhow!("the embedded DejaVu Sans font is not readable"))
+}
+
+/// Bar colours of the compared methods.
+fn method_colour(v: Variant) -> RGBColor {
+    match v {
+        Variant::Full => RGBColor(214, 69, 65),
+        Variant::Mmq => RGBColor(70, 130, 180),
+        Variant::Mmp => RGBColor(90, 170, 90),
+        _ => RGBColor(150, 150, 150),
+    }
+}
+
+/// Draws the comparison figure: three grouped bar charts (G2R, R2G, payload) with one group per dataset and
+/// one bar per compared method.
+pub fn draw_comparison<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, datasets: &[DatasetRuns]) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let panels = root.split_evenly((1, 3));
+    type Metric = fn(&Summary) -> Option<f64>;
+    let metrics: [(&str, Metric); 3] = [
+        ("G2R RMSE (m)", |s| s.g2r_rmse_m),
+        ("R2G RMSE (m)", |s| s.r2g_rmse_m),
+        ("payload (bytes/frame)", |s| s.payload_bytes),
+    ];
+    let n = datasets.len().max(1);
+    let bars = COMPARED.len() as f64;
+    for (panel, (title, metric)) in panels.iter().zip(metrics) {
+        let top = datasets
+            .iter()
+            .flat_map(|d| COMPARED.iter().filter_map(|&v| d.summary(v).and_then(metric)))
+            .fold(0.0f64, f64::max);
+        let top = if top > 0.0 { top * 1.5 } else { 1.0 }; // headroom for the legend
+        let mut chart = ChartBuilder::on(panel)
+            .caption(title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..n as f64, 0.0..top)
+            .map_err(|e| anyhow!("{e}"))?;
+        let names: Vec<String> = datasets.iter().map(|d| d.name.clone()).collect();
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .x_labels(n * 2 + 1)
+            .x_label_formatter(&|x| {
+                let k = (*x - 0.5).round();
+                if (x - 0.5 - k).abs() < 1e-6 && k >= 0.0 {
+                    names.get(k as usize).cloned().unwrap_or_default()
+                } else {
+                    String::new()
+                }
+            })
+            .y_label_formatter(&|y| if top < 0.5 { format!("{y:.3}") } else { format!("{y:.0}") })
+            .label_style(("sans-serif", 13))
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+        for (b, &v) in COMPARED.iter().enumerate() {
+            let colour = method_colour(v);
+            let rects: Vec<Rectangle<(f64, f64)>> = datasets
+                .iter()
+                .enumerate()
+                .filter_map(|(k, d)| d.summary(v).and_then(metric).map(|y| (k, y)))
+                .map(|(k, y)| {
+                    let x0 = k as f64 + 0.1 + 0.8 * b as f64 / bars;
+                    Rectangle::new([(x0, 0.0), (x0 + 0.8 / bars * 0.9, y)], colour.filled())
+                })
+                .collect();
+            chart
+                .draw_series(rects)
+                .map_err(|e| anyhow!("{e}"))?
+                .label(method_name(v))
+                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], colour.filled()));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+    }
+    root.present().map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
