@@ -518,10 +518,10 @@ impl<'s> Mapper<'s> {
                 .tracker
                 .nearest(track_centre, object.class, &params)
                 .and_then(|i| self.tracker.tracks.get(i))
-                .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), object.bbox_min, object.bbox_max, &params))
+                .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), &params))
                 .filter(|f| f.accepted);
             state = SQ_REJECTED;
-            let fit = warm.or_else(|| superquadric::fit(points, &frame, object.bbox_min, object.bbox_max, &params));
+            let fit = warm.or_else(|| superquadric::fit(points, &frame, &params));
             if let Some(fit) = fit {
                 error = fit.error;
                 if fit.accepted {

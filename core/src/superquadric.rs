@@ -203,13 +203,82 @@ fn clamp(theta: &mut Theta) {
     }
 }
 
-/// The LM objective: Σ (radial distance)² over the points plus the size prior w · Σ a_k².
+/// How far the shape reaches beyond its support: for each axis k, the + end (index 2k) and the − end (2k + 1),
+/// in metres beyond the support's extent plus the allowance of that end (see [`extent_excess`]), and the
+/// support point (local coordinates) that bounds that end.
+#[derive(Debug, Clone, Copy)]
+struct Excess {
+    /// Excess per end, metres (0 when within).
+    metres: [f32; 6],
+    /// The bounding support point of each end, local coordinates.
+    bound: [Vec3; 6],
+}
+
+/// Percentile of the support's robust box in the acceptance test ([`robust_box`]).
+const BOX_PERCENTILE: f32 = 0.95;
+
+/// Fixed part of the allowance of [`extent_excess`] for either end of an axis, metres.
+const EXTENT_MARGIN: f32 = 0.02;
+
+/// Weight of the extent residuals in the LM objective, per fit point (so the constraint outweighs the data).
+const EXTENT_WEIGHT: f32 = 1.0;
+
+/// The extent constraint: seen side-on, an object's extent is observed (its silhouette), so the shape may reach
+/// beyond its support `points` by `margin(a_k)` only, except at the end of an axis that lies away from the
+/// camera, where the unseen back may extend by `|axis · view| · 2 · max a` more. Without it a shape seen on one
+/// or two faces grows freely along them (the data cost is flat there).
+fn extent_excess(sq: &Superquadric, points: &[Vec3], margin: impl Fn(f32) -> f32) -> Excess {
+    let view = linalg::normalize_or(sq.centre, [0.0, 0.0, 1.0]);
+    let largest = sq.scales.iter().fold(0.0f32, |m, &a| m.max(a));
+    let mut out = Excess { metres: [0.0; 6], bound: [[0.0; 3]; 6] };
+    if points.is_empty() {
+        return out;
+    }
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for &p in points {
+        let l = sq.local(p);
+        for k in 0..3 {
+            let (Some(x), Some(h), Some(m)) = (l.get(k).copied(), hi.get_mut(k), lo.get_mut(k)) else { continue };
+            if x > *h {
+                *h = x;
+                if let Some(b) = out.bound.get_mut(2 * k) {
+                    *b = l;
+                }
+            }
+            if x < *m {
+                *m = x;
+                if let Some(b) = out.bound.get_mut(2 * k + 1) {
+                    *b = l;
+                }
+            }
+        }
+    }
+    for k in 0..3 {
+        let (Some(&a), Some(&lo), Some(&hi)) = (sq.scales.get(k), lo.get(k), hi.get(k)) else { continue };
+        let facing = linalg::dot(linalg::column(&sq.rotation, k), view);
+        let hidden = libm::fabsf(facing) * 2.0 * largest;
+        let m = margin(a);
+        let (plus, minus) = if facing >= 0.0 { (m + hidden, m) } else { (m, m + hidden) };
+        if let Some(e) = out.metres.get_mut(2 * k) {
+            *e = (a - hi - plus).max(0.0);
+        }
+        if let Some(e) = out.metres.get_mut(2 * k + 1) {
+            *e = (a + lo - minus).max(0.0);
+        }
+    }
+    out
+}
+
+/// The LM objective: Σ (radial distance)² over the points, plus the size prior w · Σ a_k², plus the extent
+/// constraint `EXTENT_WEIGHT · N · Σ excess²` ([`extent_excess`]).
 fn cost(sq: &Superquadric, points: &[Vec3], w: f32) -> f32 {
     let data: f32 = points.iter().map(|&p| {
         let d = sq.distance(p);
         d * d
     }).sum();
-    let c = data + w * linalg::dot(sq.scales, sq.scales);
+    let excess = extent_excess(sq, points, |_| EXTENT_MARGIN).metres;
+    let extent = EXTENT_WEIGHT * points.len() as f32 * excess.iter().map(|e| e * e).sum::<f32>();
+    let c = data + w * linalg::dot(sq.scales, sq.scales) + extent;
     if c.is_finite() {
         c
     } else {
@@ -365,6 +434,37 @@ fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: 
                 }
             }
         }
+        // The extent constraint: residuals √W · excess of each end that reaches beyond its allowance, with
+        // ∂/∂a_k = 1 and, through the bounding point l (local, l = Rᵀ(p − c)): ∂l_k/∂c = −R_k, ∂l_k/∂r = e_k × l.
+        let excess = extent_excess(&base, points, |_| EXTENT_MARGIN);
+        let weight = EXTENT_WEIGHT * points.len() as f32;
+        for (end, (&e, &l)) in excess.metres.iter().zip(&excess.bound).enumerate() {
+            if e <= 0.0 {
+                continue;
+            }
+            let k = end / 2;
+            // + end: e = a_k − l_k − allowance; − end: e = a_k + l_k − allowance.
+            let sign = if end % 2 == 0 { -1.0 } else { 1.0 };
+            let mut axis = [0.0f32; 3];
+            if let Some(x) = axis.get_mut(k) {
+                *x = 1.0;
+            }
+            let dl_dc = linalg::scale(linalg::column(&base.rotation, k), -1.0);
+            let dl_dr = linalg::cross(axis, l);
+            let mut row = [0.0f32; SQ_PARAMS];
+            if let Some(x) = row.get_mut(k) {
+                *x = 1.0;
+            }
+            for (x, d) in row.iter_mut().skip(5).zip(dl_dc.iter().chain(&dl_dr)) {
+                *x = sign * d;
+            }
+            for (a, (ja, ga)) in jtj.iter_mut().zip(row.iter().zip(jtr.iter_mut())) {
+                *ga += weight * ja * e;
+                for (x, jb) in a.iter_mut().zip(&row) {
+                    *x += weight * ja * jb;
+                }
+            }
+        }
         // The size prior: residuals √w · a_k with derivative √w.
         for k in 0..3 {
             if let (Some(row), Some(g), Some(&a)) = (jtj.get_mut(k), jtr.get_mut(k), theta.get(k)) {
@@ -415,8 +515,8 @@ fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: 
 }
 
 /// Fits a superquadric to `points` (camera frame) whose support has covariance eigen-frame `pca` (columns
-/// e0, e1, e2) and 3-D box `[bbox_min, bbox_max]`. `None` when there are too few points.
-pub fn fit(points: &[Vec3], pca: &Mat3, bbox_min: Vec3, bbox_max: Vec3, params: &Params) -> Option<Fit> {
+/// e0, e1, e2). `None` when there are too few points.
+pub fn fit(points: &[Vec3], pca: &Mat3, params: &Params) -> Option<Fit> {
     if points.len() < SQ_PARAMS {
         return None;
     }
@@ -448,23 +548,29 @@ pub fn fit(points: &[Vec3], pca: &Mat3, bbox_min: Vec3, bbox_max: Vec3, params: 
         levenberg_marquardt(points, run, SCREEN_ITERS.min(params.lm_max_iters), params);
     }
     runs.sort_unstable_by(|a, b| a.cost.total_cmp(&b.cost));
+    // The best screened guess continues; when its result is not acceptable (typically a shape grown sideways
+    // beyond its support, which the visible points alone do not forbid), the next guesses in cost order get
+    // their turn, up to `FALLBACK_CANDIDATES` in all. The first acceptable one wins, else the cheapest.
     let mut best: Option<(f32, Fit)> = None;
-    for run in runs.iter_mut().take(LM_CANDIDATES) {
+    for run in runs.iter_mut().take(LM_CANDIDATES + FALLBACK_CANDIDATES).filter(|r| r.cost.is_finite()) {
         let more = params.lm_max_iters.saturating_sub(run.iterations);
         levenberg_marquardt(points, run, more, params);
         let sq = model(&run.theta, &run.base);
+        let mut fit = Fit { sq, error: sq.error(points), iterations: run.iterations, accepted: false };
+        fit.accepted = is_acceptable(&fit, points, params);
+        if fit.accepted {
+            return Some(fit);
+        }
         if best.is_none_or(|(b, _)| run.cost < b) {
-            best = Some((run.cost, Fit { sq, error: sq.error(points), iterations: run.iterations, accepted: false }));
+            best = Some((run.cost, fit));
         }
     }
-    let (_, mut best) = best?;
-    best.accepted = is_acceptable(&best, bbox_min, bbox_max, params);
-    Some(best)
+    best.map(|(_, f)| f)
 }
 
 /// Levenberg–Marquardt from a given superquadric only (a warm start, e.g. the object's track state), with the
 /// same objective, iteration budget and acceptance test as [`fit`].
-pub fn refine(points: &[Vec3], start: &Superquadric, bbox_min: Vec3, bbox_max: Vec3, params: &Params) -> Option<Fit> {
+pub fn refine(points: &[Vec3], start: &Superquadric, params: &Params) -> Option<Fit> {
     if points.len() < SQ_PARAMS {
         return None;
     }
@@ -484,13 +590,65 @@ pub fn refine(points: &[Vec3], start: &Superquadric, bbox_min: Vec3, bbox_max: V
     levenberg_marquardt(points, &mut run, params.lm_max_iters, params);
     let sq = model(&run.theta, &run.base);
     let mut fit = Fit { sq, error: sq.error(points), iterations: run.iterations, accepted: false };
-    fit.accepted = is_acceptable(&fit, bbox_min, bbox_max, params);
+    fit.accepted = is_acceptable(&fit, points, params);
     Some(fit)
 }
 
-/// The acceptance test: E_sq below `sq_max_error`, finite and within bounds, every half-axis at most 1.5 × half
-/// the support box's diagonal, and the centre inside the support box grown by half its diagonal.
-fn is_acceptable(fit: &Fit, bbox_min: Vec3, bbox_max: Vec3, params: &Params) -> bool {
+/// Whether `sq` stays within the extent of its support `points` (camera frame): [`extent_excess`] with a looser
+/// margin of 3 cm + 15 % of the half-axis than the LM's soft constraint ([`EXTENT_MARGIN`]).
+pub fn stays_within_support(sq: &Superquadric, points: &[Vec3]) -> bool {
+    extent_excess(sq, points, |a| SUPPORT_MARGIN + 0.15 * a).metres.iter().all(|&e| e <= 0.0)
+}
+
+/// The box between the 5th and 95th percentiles of `points` along each camera axis, metres: the support's extent
+/// without the few stray points a mask edge can lend it (they would license a shape grown to reach them).
+pub fn robust_box(points: &[Vec3]) -> (Vec3, Vec3) {
+    let n = points.len().min(MAX_SAMPLES);
+    let (mut lo, mut hi) = ([0.0f32; 3], [0.0f32; 3]);
+    let mut values = [0.0f32; MAX_SAMPLES];
+    for k in 0..3 {
+        for (v, p) in values.iter_mut().zip(points) {
+            *v = p.get(k).copied().unwrap_or(0.0);
+        }
+        let slice = values.get_mut(..n).unwrap_or(&mut []);
+        if let (Some(l), Some(h)) = (lo.get_mut(k), hi.get_mut(k)) {
+            *l = percentile(slice, 1.0 - BOX_PERCENTILE);
+            *h = percentile(slice, BOX_PERCENTILE);
+        }
+    }
+    (lo, hi)
+}
+
+/// RMS distance of the best 90 % of `points` to the surface of `sq`, metres (a few stray support points from a
+/// mask edge do not fail a good fit); 0 without points.
+pub fn trimmed_rms_distance(sq: &Superquadric, points: &[Vec3]) -> f32 {
+    let n = points.len().min(MAX_SAMPLES);
+    let mut d = [0.0f32; MAX_SAMPLES];
+    for (x, &p) in d.iter_mut().zip(points) {
+        let e = sq.distance(p);
+        *x = if e.is_finite() { e * e } else { f32::INFINITY };
+    }
+    let kept = (n * 9).div_ceil(10);
+    let slice = d.get_mut(..n).unwrap_or(&mut []);
+    slice.sort_unstable_by(f32::total_cmp);
+    if kept == 0 {
+        return 0.0;
+    }
+    libm::sqrtf(slice.iter().take(kept).sum::<f32>() / kept as f32)
+}
+
+/// Fixed part of the margin of [`stays_within_support`], metres.
+const SUPPORT_MARGIN: f32 = 0.03;
+
+/// Further screened guesses tried when the best one's result is not acceptable.
+const FALLBACK_CANDIDATES: usize = 3;
+
+/// The acceptance test: E_sq below `sq_max_error`, trimmed RMS point distance at most `sq_max_rms`, finite and
+/// within bounds, every half-axis at most 1.5 × half the diagonal of the support's [`robust_box`], the centre
+/// inside that box grown by half its diagonal, and the shape
+/// within its support seen side-on ([`stays_within_support`]).
+fn is_acceptable(fit: &Fit, points: &[Vec3], params: &Params) -> bool {
+    let (bbox_min, bbox_max) = robust_box(points);
     let half_diag = 0.5 * linalg::norm(linalg::sub(bbox_max, bbox_min));
     let grow = [half_diag; 3];
     let (lo, hi) = (linalg::sub(bbox_min, grow), linalg::add(bbox_max, grow));
@@ -499,5 +657,12 @@ fn is_acceptable(fit: &Fit, bbox_min: Vec3, bbox_max: Vec3, params: &Params) -> 
         c >= lo.get(k).copied().unwrap_or(0.0) && c <= hi.get(k).copied().unwrap_or(0.0)
     });
     let sized = fit.sq.scales.iter().all(|&a| a <= 1.5 * half_diag.max(MIN_SCALE));
-    fit.error.is_finite() && fit.error < params.sq_max_error && fit.sq.is_within_bounds() && centred && sized
+    let rms = trimmed_rms_distance(&fit.sq, points);
+    fit.error.is_finite()
+        && fit.error < params.sq_max_error
+        && rms <= params.sq_max_rms
+        && fit.sq.is_within_bounds()
+        && centred
+        && sized
+        && stays_within_support(&fit.sq, points)
 }

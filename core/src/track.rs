@@ -17,7 +17,7 @@ use bytemuck::Zeroable;
 use crate::linalg::{self, Mat3, Vec3};
 use crate::params::Params;
 use crate::pool::Bounded;
-use crate::superquadric::Superquadric;
+use crate::superquadric::{Superquadric, EPS_RANGE, MIN_SCALE};
 
 /// One superquadric track.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
@@ -110,8 +110,10 @@ pub fn smooth(previous: &Superquadric, aligned: &Superquadric, params: &Params) 
     Superquadric {
         centre: ema3(previous.centre, aligned.centre, params.alpha_c),
         rotation: linalg::matrix_from_quat(q),
-        scales: ema3(previous.scales, aligned.scales, params.alpha_s),
-        eps: [ema(previous.eps[0], aligned.eps[0], params.alpha_s), ema(previous.eps[1], aligned.eps[1], params.alpha_s)],
+        // Clamped to the bounds: an average of in-bound values can round a last bit outside them.
+        scales: ema3(previous.scales, aligned.scales, params.alpha_s).map(|a| a.max(MIN_SCALE)),
+        eps: [ema(previous.eps[0], aligned.eps[0], params.alpha_s), ema(previous.eps[1], aligned.eps[1], params.alpha_s)]
+            .map(|e| e.clamp(EPS_RANGE.0, EPS_RANGE.1)),
     }
 }
 
@@ -142,11 +144,16 @@ pub struct Updated {
     pub step_m: f32,
 }
 
-/// Whether the sorted half-axes of the measurement are each within a factor `gate` of the track's (sorted, so
-/// the gate judges the shape and not the axis labelling, with or without alignment).
-fn within_scale_gate(track: &Superquadric, measured: &Superquadric, gate: f32) -> bool {
+/// Whether the half-axes of the measurement are each within a factor `gate` of the track's. `per_axis`
+/// compares them axis by axis (after alignment: a measurement that no equivalent brings onto the track's axes,
+/// e.g. a plate fitted with its thin axis as x instead of z, would otherwise be blended into a shape that is
+/// neither); without alignment they are compared sorted, so the gate judges the shape and not the axis
+/// labelling (otherwise it would silently hide WSQA's flips).
+fn within_scale_gate(track: &Superquadric, measured: &Superquadric, gate: f32, per_axis: bool) -> bool {
     let sorted = |mut s: Vec3| {
-        s.sort_unstable_by(f32::total_cmp);
+        if !per_axis {
+            s.sort_unstable_by(f32::total_cmp);
+        }
         s
     };
     let (a, b) = (sorted(track.scales), sorted(measured.scales));
@@ -202,7 +209,7 @@ impl<'a> Tracker<'a> {
         if let Some(i) = self.nearest(sq.centre, class, params) {
             if let Some(t) = self.tracks.get_mut(i) {
                 let aligned = if align_equivalents { align(&t.sq, sq) } else { *sq };
-                if !within_scale_gate(&t.sq, &aligned, params.track_scale_gate) {
+                if !within_scale_gate(&t.sq, &aligned, params.track_scale_gate, align_equivalents) {
                     // An outlier shape (a bad fit): the track keeps its state and stays alive.
                     t.last_frame = frame;
                     return Updated { index: Some(i), new: false, jump_deg: 0.0, sq: t.sq, gated: true, step_m: 0.0 };
@@ -269,6 +276,17 @@ mod tests {
         let (rc, sc) = cycle(&r, previous.scales, 1);
         let aligned = align(&cylinder, &Superquadric { rotation: rc, scales: sc, ..cylinder });
         assert!(linalg::rotation_angle_between(&cylinder.rotation, &aligned.rotation).to_degrees() > 60.0);
+    }
+
+    #[test]
+    fn smoothing_at_the_bounds_stays_within_them() {
+        let params = Params::default();
+        let at_bounds = Superquadric { scales: [MIN_SCALE, 0.2, 0.3], eps: [EPS_RANGE.0, EPS_RANGE.1], ..boxlike(linalg::IDENTITY, [0.1; 3]) };
+        let mut state = at_bounds;
+        for _ in 0..50 {
+            state = smooth(&state, &at_bounds, &params);
+            assert!(state.is_within_bounds(), "{state:?}");
+        }
     }
 
     #[test]

@@ -84,11 +84,8 @@ fn fits_known_shapes_from_their_visible_half() {
         let truth = random_sq(&mut rng, eps);
         let all = visible_points(&truth, 1500, 0.002, &mut rng);
         let frame = pca(&all);
-        let (lo, hi) = all.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), &p| {
-            (linalg::min_elem(lo, p), linalg::max_elem(hi, p))
-        });
         let sample: Vec<Vec3> = all.iter().step_by(all.len() / params.lm_samples as usize).copied().take(100).collect();
-        let f = fit(&sample, &frame, lo, hi, &params).expect("enough points");
+        let f = fit(&sample, &frame, &params).expect("enough points");
         let centre_err = linalg::norm(linalg::sub(f.sq.centre, truth.centre));
         let mut a = f.sq.scales;
         let mut b = truth.scales;
@@ -125,14 +122,11 @@ fn mmq_fits_ellipsoids_only() {
         let truth = random_sq(&mut rng, if is_box { [0.15, 0.15] } else { [1.0, 1.0] });
         let all = visible_points(&truth, 1500, 0.002, &mut rng);
         let frame = pca(&all);
-        let (lo, hi) = all.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), &p| {
-            (linalg::min_elem(lo, p), linalg::max_elem(hi, p))
-        });
         let sample: Vec<Vec3> = all.iter().step_by(all.len() / 100).copied().take(100).collect();
-        let f = fit(&sample, &frame, lo, hi, &mmq).expect("enough points");
+        let f = fit(&sample, &frame, &mmq).expect("enough points");
         assert_eq!(f.sq.eps, [1.0, 1.0], "case {case}: MMQ must keep ε1 = ε2 = 1");
         if is_box {
-            let g = fit(&sample, &frame, lo, hi, &full).expect("enough points");
+            let g = fit(&sample, &frame, &full).expect("enough points");
             boxes_worse += (f.error > g.error) as u32;
         } else {
             let centre_err = linalg::norm(linalg::sub(f.sq.centre, truth.centre));
