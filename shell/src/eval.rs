@@ -63,6 +63,9 @@ pub fn semantic_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>, referen
     m
 }
 
+/// How far behind the measured depth of its pixel a reconstruction sample must lie to count as hidden, metres.
+pub const OCCLUSION_MARGIN_M: f64 = 0.05;
+
 /// Reconstruction accuracy of one frame's map (SPEC §4), metres.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ReconstructionMetrics {
@@ -70,6 +73,11 @@ pub struct ReconstructionMetrics {
     pub g2r_rmse_m: f64,
     /// R2G RMSE: √mean over the observed points P of the squared distance to the nearest reconstructed sample.
     pub r2g_rmse_m: f64,
+    /// Diagnostic beside SPEC §4 (not the paper's metric): G2R over the samples that the observed depth does not
+    /// hide, i.e. without those lying more than [`OCCLUSION_MARGIN_M`] behind the measured depth of their pixel
+    /// (e.g. the camera-facing contact face of an object pressed against another). Shows how much of the G2R
+    /// is surface the camera cannot see.
+    pub g2r_unoccluded_rmse_m: f64,
     /// |P|.
     pub observed: usize,
     /// |P̂|.
@@ -93,7 +101,19 @@ pub fn reconstruction_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>) -
     mapper.for_each_labelled_point(checked, |p, _| observed.push(p.xyz));
     let mut reconstructed = Vec::new();
     mapper.for_each_primitive(|prim| prim.for_each_sample(|x| reconstructed.push(x)));
+    let frame = checked.frame();
+    let hidden = |x: &[f32; 3]| {
+        let Some([u, v]) = frame.intrinsics.project(*x) else { return false };
+        let (u, v) = (u.round(), v.round());
+        if u < 0.0 || v < 0.0 || u >= frame.width as f32 || v >= frame.height as f32 {
+            return false;
+        }
+        let raw = frame.depth.get(v as usize * frame.width as usize + u as usize).copied().unwrap_or(0);
+        raw != 0 && x[2] > raw as f32 / frame.depth_scale + OCCLUSION_MARGIN_M as f32
+    };
+    let unoccluded: Vec<[f32; 3]> = reconstructed.iter().filter(|x| !hidden(x)).copied().collect();
     Some(ReconstructionMetrics {
+        g2r_unoccluded_rmse_m: rms_nearest(&unoccluded, &observed).unwrap_or(0.0),
         g2r_rmse_m: rms_nearest(&reconstructed, &observed)?,
         r2g_rmse_m: rms_nearest(&observed, &reconstructed)?,
         observed: observed.len(),
