@@ -451,7 +451,7 @@ impl Scene {
                     object("pouf", 4, "pouf", Shape::Superquadric { centre: [crate_c[0] + crate_h[0] + 0.12, 1.05, 0.15], scales: [0.12, 0.15, 0.15], eps: [0.6, 0.8], yaw: 0.0 }, [80, 170, 110]),
                     cuboid("book", 5, "book", [-0.15, 1.1, 2.0 * crate_h[2] + 0.04], [0.12, 0.09, 0.04], 0.4, [40, 70, 160]),
                 ];
-                (v, [0.05, -0.55, 1.3], [0.0, 0.85, 0.2])
+                (v, [-0.05, -0.25, 1.2], [-0.05, 0.95, 0.2])
             }
             other => bail!("unknown scene {other:?} (known: {})", SCENES.join(", ")),
         };
