@@ -118,7 +118,7 @@ fn exact_depth_matches_closed_form_geometry() {
                     let s = dot(n, p0) / denom;
                     let p = ray.map(|x| x * s);
                     let inside = (0..3).filter(|&b| b != a).all(|b| dot(sub(p, centre_c), axes[b]).abs() <= half[b] + 1e-9);
-                    if s > 0.0 && inside && best.map_or(true, |t| s < t) {
+                    if s > 0.0 && inside && best.filter(|&t| t <= s).is_none() {
                         best = Some(s);
                     }
                 }
@@ -148,7 +148,7 @@ fn exact_depth_matches_closed_form_geometry() {
             }
             let s = (hh - o[2]) / d[2]; // top cap (the camera is above it)
             let (x, y) = (o[0] + s * d[0], o[1] + s * d[1]);
-            if s > 0.0 && x * x + y * y <= radius * radius && best.map_or(true, |t| s < t) {
+            if s > 0.0 && x * x + y * y <= radius * radius && best.filter(|&t| t <= s).is_none() {
                 best = Some(s);
             }
             best

@@ -176,7 +176,7 @@ impl Shape {
                     let s = -d[2].signum();
                     let t = (s * half_height - o[2]) / d[2];
                     let (x, y) = (o[0] + t * d[0], o[1] + t * d[1]);
-                    if t > 0.0 && x * x + y * y <= radius * radius && best.map_or(true, |b| t < b.0) {
+                    if t > 0.0 && x * x + y * y <= radius * radius && best.filter(|b| b.0 <= t).is_none() {
                         best = Some((t, [0.0, 0.0, s]));
                     }
                 }
@@ -193,19 +193,23 @@ impl Shape {
                 (t > 0.0).then(|| (t, scale(add(o, scale(dir, t)), 1.0 / radius)))
             }
             Shape::Superquadric { centre, scales, eps, yaw } => {
-                // Bounding box first, then march along the ray for the first sign change of F − 1 and bisect it.
+                // Bounding box first, then march along the ray in steps of 1/64 of the smallest half-axis (at most
+                // SQ_MAX_STEPS) for the first sign change of F − 1, and bisect that bracket to SQ_TOLERANCE. A ray
+                // whose chord through the shape is shorter than one step can be missed (silhouette pixels only).
                 let (o, d) = (to_local(sub(origin, centre), yaw), to_local(dir, yaw));
                 let (t_near, t_far, _) = slab(o, d, scales)?;
                 if t_far <= 0.0 {
                     return None;
                 }
                 let inside = |t: f64| sq_inside_outside(add(o, scale(d, t)), scales, eps) <= 1.0;
+                let hit = |t: f64| {
+                    let l = add(o, scale(d, t));
+                    (t, from_local(normalize_or_radial(sq_gradient(l, scales, eps), l), yaw))
+                };
                 let t0 = t_near.max(0.0);
                 if inside(t0) {
-                    if t_near <= 0.0 {
-                        return None; // the origin is inside
-                    }
-                    return Some((t0, from_local(normalize_or_radial(sq_gradient(add(o, scale(d, t0)), scales, eps), add(o, scale(d, t0))), yaw)));
+                    // F ≥ 1 on the bounding box, so this is a touching entry point, or the origin is inside.
+                    return (t_near > 0.0).then(|| hit(t0));
                 }
                 let len = dot(d, d).sqrt();
                 let smallest = scales[0].min(scales[1]).min(scales[2]);
@@ -213,9 +217,8 @@ impl Shape {
                 let step = (t_far - t0) / steps as f64;
                 let mut lo = t0;
                 for j in 1..=steps {
-                    let hi = t0 + step * j as f64;
+                    let mut hi = t0 + step * j as f64;
                     if inside(hi) {
-                        let mut hi = hi;
                         for _ in 0..128 {
                             if (hi - lo) * len < SQ_TOLERANCE {
                                 break;
@@ -227,9 +230,7 @@ impl Shape {
                                 lo = mid;
                             }
                         }
-                        let t = 0.5 * (lo + hi);
-                        let l = add(o, scale(d, t));
-                        return Some((t, from_local(normalize_or_radial(sq_gradient(l, scales, eps), l), yaw)));
+                        return Some(hit(0.5 * (lo + hi)));
                     }
                     lo = hi;
                 }
