@@ -93,15 +93,17 @@ enum Command {
         #[arg(long, default_value_t = 0.25)]
         fault_rate: f32,
     },
-    /// Write a synthetic scene with ground truth as a TUM folder.
+    /// Write a synthetic scene with ground truth as a TUM folder (rgb/, depth/, groundtruth.txt, camera.json,
+    /// masks/ and the exact gt/ with objects.json).
     Synth {
-        /// Scene name: tabletop, shelf.
+        /// Scene name: tabletop, shelf, desk, kitchen (table with a mug, ball, cushion, cereal box, bottle),
+        /// clutter (objects touching each other, the floor and the wall: built to provoke adhesion).
         #[arg(long)]
         scene: String,
         /// Number of frames.
         #[arg(long)]
         frames: usize,
-        /// Sensor-noise seed.
+        /// Seed of the sensor noise and of the mask degradation.
         #[arg(long, default_value_t = 1)]
         seed: u32,
         /// Render exact depth and colour (no sensor noise).
@@ -110,6 +112,18 @@ enum Command {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
+        /// Erode each instance in masks/ by PX pixels (gt/ stays exact).
+        #[arg(long, value_name = "PX", default_value_t = 0)]
+        mask_erode: u32,
+        /// Dilate each instance in masks/ by PX pixels, never over another instance.
+        #[arg(long, value_name = "PX", default_value_t = 0)]
+        mask_dilate: u32,
+        /// Drop each instance from masks/ in each frame with probability P.
+        #[arg(long, value_name = "P", default_value_t = 0.0)]
+        mask_miss: f64,
+        /// Mask scores become clamp(1 - |N(0, S)|, 0.05, 1) (0: every score is 1).
+        #[arg(long, value_name = "S", default_value_t = 0.0)]
+        mask_score_noise: f64,
     },
     /// Draw the four-panel picture of frame K (masks, Gaussians, fused clusters, map) into a PNG.
     Render {
@@ -246,8 +260,10 @@ fn execute(cli: Cli) -> Result<()> {
             println!("report: {}", out.join("report.md").display());
             Ok(())
         }
-        Command::Synth { scene, frames, seed, no_noise, out } => {
-            synth::Scene::named(&scene)?.write_tum(&out, frames, seed, !no_noise)?;
+        Command::Synth { scene, frames, seed, no_noise, out, mask_erode, mask_dilate, mask_miss, mask_score_noise } => {
+            let degradation =
+                synth::Degradation { erode: mask_erode, dilate: mask_dilate, miss: mask_miss, score_noise: mask_score_noise };
+            synth::Scene::named(&scene)?.write_tum_degraded(&out, frames, seed, !no_noise, &degradation)?;
             println!("wrote {frames} frames of scene {scene} to {}", out.display());
             Ok(())
         }
