@@ -113,7 +113,7 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
     for v in Variant::ALL {
         let s = summary(&out, "tabletop", v);
         let row = &t3[&(method_name(v).to_string(), "tabletop".to_string())];
-        for (cell, k) in row.iter().zip(["g2r_rmse_m", "r2g_rmse_m", "payload_bytes", "bytes_per_primitive", "hz"]) {
+        for (cell, k) in row.iter().zip(["g2r_rmse_m", "g2r_unoccluded_rmse_m", "r2g_rmse_m", "payload_bytes", "bytes_per_primitive", "hz"]) {
             assert_eq!(*cell, fmt(&s[k]), "tabletop {v:?} {k}");
         }
     }

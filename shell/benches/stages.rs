@@ -92,7 +92,7 @@ fn main() {
             None => eprintln!("skipped: ../shared/data/{name} not found"),
         }
     }
-    for scene in ["tabletop", "desk"] {
+    for scene in m2smap::synth::SCENES {
         let s = Scene::named(scene).expect("built-in scene");
         let frames: Frames = (0..10)
             .map(|k| {
