@@ -102,9 +102,11 @@ fn boxes_overlap(a: [u16; 4], b: [u16; 4]) -> bool {
 }
 
 /// Fills `hits` with the support points of each Gaussian inside each candidate mask.
+#[allow(clippy::too_many_arguments)]
 pub fn count_hits(
     frame: &Frame<'_>,
     masks: &MaskSet<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
     gaussians: &[Gaussian],
@@ -118,7 +120,7 @@ pub fn count_hits(
     };
     let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
     let w = frame.width as usize;
-    supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
         let Some((_, v)) = v else { return };
         let g = v.gaussian as usize;
         let Some(gauss) = gaussians.get(g) else { return };
@@ -219,6 +221,7 @@ struct Cut {
 pub fn cut_along_masks(
     frame: &Frame<'_>,
     masks: &MaskSet<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
     voxels: &mut [Voxel],
     slots: &[u16],
     scratch: &mut [u16],
@@ -250,7 +253,7 @@ pub fn cut_along_masks(
     inside.fill(0);
     {
         let gauss = gaussians.as_slice();
-        supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+        supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
             let Some((vi, g)) = v.and_then(|(vi, v)| gauss.get(v.gaussian as usize).map(|g| (vi, g))) else { return };
             let Some(cut) = (g.owner as usize).checked_sub(1).and_then(|c| cuts.get(c)) else { return };
             if masks.contains(cut.instance as usize, p.u, p.v) {
@@ -294,7 +297,7 @@ pub fn cut_along_masks(
         g.owner = 0;
     }
     if made > 0 {
-        gmm::recompute_statistics(frame, voxels, slots, scratch, gaussians.as_mut_slice(), params);
+        gmm::recompute_statistics(frame, voxel_masks, voxels, slots, scratch, gaussians.as_mut_slice(), params);
     }
     made
 }

@@ -27,6 +27,7 @@
 use bytemuck::Zeroable;
 
 use crate::frame::Frame;
+use crate::masks::MaskSet;
 use crate::linalg::{self, Moments, Sym3, Vec3};
 use crate::params::Params;
 use crate::pool::Bounded;
@@ -138,7 +139,7 @@ pub struct GmmPools<'a, 'b> {
 }
 
 /// Refines every supervoxel into Gaussians and computes their exact point statistics.
-pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> GmmStats {
+pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, voxel_masks: Option<&MaskSet<'_>>, params: &Params) -> GmmStats {
     let GmmPools { voxels, slots, order, supervoxels, stack, gaussians } = pools;
     let mut stats = GmmStats::default();
     gaussians.clear();
@@ -168,7 +169,7 @@ pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, params: &Params) -> Gm
         }
     }
 
-    point_statistics(frame, voxels, slots, gaussians.as_mut_slice(), params);
+    point_statistics(frame, voxel_masks, voxels, slots, gaussians.as_mut_slice(), params);
     stats
 }
 
@@ -194,8 +195,15 @@ pub fn voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel], r: f3
 
 /// Second pass over the points: the exact covariance (denominator N − 1), eigen frame, 3-D support box and
 /// projected support box of every Gaussian, given its mean from [`voxel_statistics`].
-pub fn point_statistics(frame: &Frame<'_>, voxels: &[Voxel], slots: &[u16], gaussians: &mut [Gaussian], params: &Params) {
-    supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+pub fn point_statistics(
+    frame: &Frame<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    gaussians: &mut [Gaussian],
+    params: &Params,
+) {
+    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
         let Some(g) = v.and_then(|(_, v)| gaussians.get_mut(v.gaussian as usize)) else { return };
         let d = linalg::sub(p.xyz, g.mean);
         let c = &mut g.covariance;
@@ -226,7 +234,15 @@ pub fn point_statistics(frame: &Frame<'_>, voxels: &[Voxel], slots: &[u16], gaus
 
 /// Recomputes every Gaussian's statistics after voxels changed Gaussian: groups the voxel indices by Gaussian in
 /// `order`, then [`voxel_statistics`] per Gaussian and one [`point_statistics`] pass.
-pub fn recompute_statistics(frame: &Frame<'_>, voxels: &[Voxel], slots: &[u16], order: &mut [u16], gaussians: &mut [Gaussian], params: &Params) {
+pub fn recompute_statistics(
+    frame: &Frame<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    order: &mut [u16],
+    gaussians: &mut [Gaussian],
+    params: &Params,
+) {
     let n = voxels.len().min(order.len());
     let Some(order) = order.get_mut(..n) else { return };
     for (i, o) in order.iter_mut().enumerate() {
@@ -246,7 +262,7 @@ pub fn recompute_statistics(frame: &Frame<'_>, voxels: &[Voxel], slots: &[u16], 
         }
         start = end;
     }
-    point_statistics(frame, voxels, slots, gaussians, params);
+    point_statistics(frame, voxel_masks, voxels, slots, gaussians, params);
 }
 
 /// Weighted voxel-centroid moments of the range, and its point count.

@@ -179,6 +179,18 @@ impl<'s> Mapper<'s> {
         &self.params
     }
 
+    /// The masks the voxels of `checked` are split by (mask slots, see [`supervoxel::voxelize`]): its masks in
+    /// the semantic-fusion variants with the mask-consistent refinement on (`mask_split_min_share` < 1), else
+    /// none. Geometry-only variants and PMSAO's post-merge annotation keep the paper's purely geometric voxels.
+    pub fn voxel_masks<'a>(&self, checked: &CheckedFrame<'a>) -> Option<MaskSet<'a>> {
+        checked.masks.filter(|_| self.uses_mask_slots())
+    }
+
+    /// Whether frames given with masks are voxelised in mask slots (see [`Mapper::voxel_masks`]).
+    pub fn uses_mask_slots(&self) -> bool {
+        self.params.variant.semantic_fusion() && self.params.mask_split_min_share < 1.0
+    }
+
     /// Validates a frame and its masks without touching any state.
     pub fn check<'a>(&self, frame: Frame<'a>, masks: Option<MaskSet<'a>>) -> Result<CheckedFrame<'a>, FrameError> {
         frame.validate(&self.params, self.max_pixels)?;
@@ -247,7 +259,8 @@ impl<'s> Mapper<'s> {
     /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks).
     pub fn stage_voxels(&mut self, checked: &CheckedFrame<'_>) {
         self.report = FrameReport { frame: self.frames + 1, ..FrameReport::default() };
-        let stats = supervoxel::voxelize(&checked.frame, &self.params, &mut self.voxels, self.slots);
+        let voxel_masks = self.voxel_masks(checked);
+        let stats = supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
         supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.params.voxel_resolution);
         self.report.points = stats.points;
         self.report.dropped_points += stats.dropped_points;
@@ -281,6 +294,7 @@ impl<'s> Mapper<'s> {
 
     /// Stage 3: IH-GMM refinement (third step of [`Mapper::process`]).
     pub fn stage_gaussians(&mut self, checked: &CheckedFrame<'_>) {
+        let voxel_masks = self.voxel_masks(checked);
         let stats = gmm::refine(
             GmmPools {
                 voxels: self.voxels.as_mut_slice(),
@@ -291,6 +305,7 @@ impl<'s> Mapper<'s> {
                 gaussians: &mut self.gaussians,
             },
             &checked.frame,
+            voxel_masks.as_ref(),
             &self.params,
         );
         self.report.splits = stats.splits;
@@ -311,13 +326,15 @@ impl<'s> Mapper<'s> {
             self.mask_hits.fill(bytemuck::Zeroable::zeroed());
             return;
         };
-        let stats = self.count_mask_hits(&checked.frame, &masks);
+        let voxel_masks = self.voxel_masks(checked);
+        let stats = self.count_mask_hits(&checked.frame, &masks, voxel_masks.as_ref());
         self.hit_overflows = stats.hit_overflows;
         self.report.ignored_instances = stats.ignored_instances;
         if self.params.variant.semantic_fusion() && self.params.mask_split_min_share < 1.0 {
             let cuts = annotate::cut_along_masks(
                 &checked.frame,
                 &masks,
+                voxel_masks.as_ref(),
                 self.voxels.as_mut_slice(),
                 self.slots,
                 self.scratch,
@@ -327,7 +344,7 @@ impl<'s> Mapper<'s> {
             );
             self.report.mask_cuts = cuts;
             if cuts > 0 {
-                self.hit_overflows += self.count_mask_hits(&checked.frame, &masks).hit_overflows;
+                self.hit_overflows += self.count_mask_hits(&checked.frame, &masks, voxel_masks.as_ref()).hit_overflows;
                 self.report.gaussians = self.gaussians.len() as u32;
             }
         }
@@ -337,10 +354,11 @@ impl<'s> Mapper<'s> {
     }
 
     /// Fills the mask-hit table for the current Gaussians.
-    fn count_mask_hits(&mut self, frame: &Frame<'_>, masks: &MaskSet<'_>) -> annotate::AnnotateStats {
+    fn count_mask_hits(&mut self, frame: &Frame<'_>, masks: &MaskSet<'_>, voxel_masks: Option<&MaskSet<'_>>) -> annotate::AnnotateStats {
         annotate::count_hits(
             frame,
             masks,
+            voxel_masks,
             self.voxels.as_slice(),
             self.slots,
             self.gaussians.as_slice(),
@@ -413,6 +431,7 @@ impl<'s> Mapper<'s> {
         }
         plane::fill_cells(
             &checked.frame,
+            self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
             self.gaussians.as_slice(),
@@ -439,6 +458,7 @@ impl<'s> Mapper<'s> {
             return;
         }
         self.tracker.begin_frame(&params);
+        let voxel_masks = self.voxel_masks(checked);
         let samples = (params.lm_samples as usize).min(superquadric::MAX_SAMPLES);
         let per_pass = (self.sq_points.len() / samples).clamp(1, MAX_OBJECTS_PER_PASS);
         let n_objects = self.objects.len();
@@ -451,7 +471,7 @@ impl<'s> Mapper<'s> {
             let gaussians = self.gaussians.as_slice();
             let sq_points = &mut *self.sq_points;
             let eligible = |k: usize| objects.get(k).is_some_and(|o| o.points >= params.sq_min_points);
-            supervoxel::for_each_voxel_point(&checked.frame, &params, self.voxels.as_slice(), self.slots, |p, v| {
+            supervoxel::for_each_voxel_point(&checked.frame, &params, voxel_masks.as_ref(), self.voxels.as_slice(), self.slots, |p, v| {
                 let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
                 let k = g.owner as usize;
                 if g.role != ROLE_OBJECT || k < first || k >= last || !eligible(k) {
@@ -612,9 +632,10 @@ impl<'s> Mapper<'s> {
         self.gaussians.as_slice()
     }
 
-    /// The voxel of the last frame that a camera-frame point falls into (any point, sampled or not).
-    pub fn voxel_at(&self, p: Vec3) -> Option<&Voxel> {
-        supervoxel::voxel_at(self.voxels.as_slice(), self.slots, p, self.params.voxel_resolution).map(|(_, v)| v)
+    /// The voxel of the last frame that a camera-frame point falls into (any point, sampled or not), in mask
+    /// slot `slot` (0 for frames mapped without mask slots; see [`Mapper::voxel_masks`]).
+    pub fn voxel_at(&self, p: Vec3, slot: u32) -> Option<&Voxel> {
+        supervoxel::voxel_at(self.voxels.as_slice(), self.slots, p, self.params.voxel_resolution, slot).map(|(_, v)| v)
     }
 
     /// Bounded planes of the last frame.
@@ -728,7 +749,7 @@ impl<'s> Mapper<'s> {
     /// Calls `f(point, voxel)` for every sampled point of `checked` with the voxel it fell into (labels tell
     /// its supervoxel and Gaussian). `checked` must be the frame last processed for the labels to mean anything.
     pub fn for_each_labelled_point(&self, checked: &CheckedFrame<'_>, mut f: impl FnMut(&Point, Option<&Voxel>)) {
-        supervoxel::for_each_voxel_point(&checked.frame, &self.params, self.voxels.as_slice(), self.slots, |p, v| {
+        supervoxel::for_each_voxel_point(&checked.frame, &self.params, self.voxel_masks(checked).as_ref(), self.voxels.as_slice(), self.slots, |p, v| {
             f(p, v.map(|(_, v)| v))
         });
     }

@@ -81,6 +81,27 @@ impl<'a> MaskSet<'a> {
         Ok(())
     }
 
+    /// The voxel slot of pixel (u, v) (see [`crate::supervoxel::voxel_key`]): 0 outside every instance of
+    /// score ≥ `min_confidence`, else 1 + (position of the first such instance holding the pixel) mod 7. Points
+    /// of different instances (and of no instance) then never share a voxel.
+    pub fn voxel_slot(&self, u: u16, v: u16, min_confidence: f32) -> u32 {
+        if u >= self.width || v >= self.height {
+            return 0;
+        }
+        let i = v as usize * self.width as usize + u as usize;
+        let usable = |inst: &Instance| inst.score >= min_confidence;
+        let k = match self.pixels {
+            MaskPixels::IdImage(ids) => match ids.get(i) {
+                Some(&id) if id != 0 => self.instances.iter().position(|inst| inst.id == id && usable(inst)),
+                _ => None,
+            },
+            MaskPixels::BitPlanes(_) => {
+                (0..self.instances.len()).find(|&k| self.instances.get(k).is_some_and(usable) && self.contains(k, u, v))
+            }
+        };
+        k.map_or(0, |k| 1 + (k % 7) as u32)
+    }
+
     /// Whether pixel (u, v) belongs to the instance at position `k` of `instances`. Out-of-range → false.
     pub fn contains(&self, k: usize, u: u16, v: u16) -> bool {
         if u >= self.width || v >= self.height {

@@ -293,7 +293,7 @@ impl Default for Params {
 }
 
 /// Largest voxel index along one axis that the packed voxel key holds (see [`crate::supervoxel::voxel_key`]).
-pub const VOXEL_GRID_HALF_EXTENT: i32 = 1023;
+pub const VOXEL_GRID_HALF_EXTENT: i32 = 511;
 
 impl Params {
     /// Axial depth noise σ(z) of the sensor at depth `z`, metres.

@@ -11,6 +11,7 @@
 use bytemuck::Zeroable;
 
 use crate::frame::Frame;
+use crate::masks::MaskSet;
 use crate::gmm::{Gaussian, ROLE_PLANE};
 use crate::linalg::{self, Eigen3, Vec3};
 use crate::params::Params;
@@ -119,6 +120,7 @@ impl Plane {
 /// Marks the occupied cells of every plane from the support points of its plane-role Gaussians.
 pub fn fill_cells(
     frame: &Frame<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
     gaussians: &[Gaussian],
@@ -128,7 +130,7 @@ pub fn fill_cells(
     if planes.is_empty() {
         return;
     }
-    supervoxel::for_each_voxel_point(frame, params, voxels, slots, |p, v| {
+    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
         let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
         if g.role != ROLE_PLANE {
             return;

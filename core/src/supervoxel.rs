@@ -22,6 +22,7 @@ use bytemuck::Zeroable;
 use crate::frame::Frame;
 use crate::linalg::{self, Moments, Vec3};
 use crate::params::{Params, VOXEL_GRID_HALF_EXTENT};
+use crate::masks::MaskSet;
 use crate::points;
 use crate::pool::{self, Bounded, Probe};
 
@@ -142,29 +143,37 @@ pub struct SeedCell {
     pub best_d2: f32,
 }
 
-/// Packs the integer cube coordinates of `p` at `resolution` into 32 bits (x, y: 11 bits each with an offset
-/// of 1024; z: 10 bits). `None` when outside the key range (a point farther than 1023 cubes).
+/// Packs the integer cube coordinates of `p` at `resolution` and a mask `slot` (0–7) into 32 bits (x, y: 10 bits
+/// each with an offset of 512; z: 9 bits; slot: the top 3 bits). `None` when outside the key range (a point
+/// farther than 511 cubes). Slots keep the points of different instance masks in different voxels (see
+/// [`crate::masks::MaskSet::voxel_slot`]); without masks every point is in slot 0.
 #[inline]
-pub fn voxel_key(p: Vec3, resolution: f32) -> Option<u32> {
+pub fn voxel_key(p: Vec3, resolution: f32, slot: u32) -> Option<u32> {
     let ix = libm::floorf(p[0] / resolution) as i32;
     let iy = libm::floorf(p[1] / resolution) as i32;
     let iz = libm::floorf(p[2] / resolution) as i32;
-    pack(ix, iy, iz)
+    pack(ix, iy, iz, slot)
 }
 
 #[inline]
-fn pack(ix: i32, iy: i32, iz: i32) -> Option<u32> {
+fn pack(ix: i32, iy: i32, iz: i32, slot: u32) -> Option<u32> {
     let h = VOXEL_GRID_HALF_EXTENT;
-    if ix < -h || ix > h || iy < -h || iy > h || !(0..=h).contains(&iz) {
+    if ix < -h || ix > h || iy < -h || iy > h || !(0..=h).contains(&iz) || slot > 7 {
         return None;
     }
-    Some((ix + 1024) as u32 | ((iy + 1024) as u32) << 11 | (iz as u32) << 22)
+    Some((ix + 512) as u32 | ((iy + 512) as u32) << 10 | (iz as u32) << 20 | slot << 29)
 }
 
 /// Integer cube coordinates (x, y, z) of a packed key.
 #[inline]
 pub fn unpack(key: u32) -> (i32, i32, i32) {
-    ((key & 0x7ff) as i32 - 1024, ((key >> 11) & 0x7ff) as i32 - 1024, (key >> 22) as i32)
+    ((key & 0x3ff) as i32 - 512, ((key >> 10) & 0x3ff) as i32 - 512, ((key >> 20) & 0x1ff) as i32)
+}
+
+/// The mask slot of a packed key.
+#[inline]
+pub fn key_slot(key: u32) -> u32 {
+    key >> 29
 }
 
 /// Corner (minimum) of the cube with `key`, metres.
@@ -183,17 +192,18 @@ pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
     }
 }
 
-/// Calls `f(j)` for each occupied voxel j among the 26 neighbours of the voxel with `key`.
+/// Calls `f(j)` for each occupied voxel j among the 26 neighbours of the voxel with `key` (in its mask slot).
 #[inline]
 pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl FnMut(usize)) {
     let (x, y, z) = unpack(key);
+    let slot = key_slot(key);
     for dz in -1..=1 {
         for dy in -1..=1 {
             for dx in -1..=1 {
                 if dx == 0 && dy == 0 && dz == 0 {
                     continue;
                 }
-                if let Some(j) = pack(x + dx, y + dy, z + dz).and_then(|k| find_voxel(voxels, slots, k)) {
+                if let Some(j) = pack(x + dx, y + dy, z + dz, slot).and_then(|k| find_voxel(voxels, slots, k)) {
                     f(j);
                 }
             }
@@ -201,26 +211,35 @@ pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl
     }
 }
 
-/// The index and record of the voxel a camera-frame point (metres) falls into, if that voxel is occupied.
+/// The index and record of the voxel of mask slot `slot` that a camera-frame point (metres) falls into, if
+/// that voxel is occupied.
 #[inline]
-pub fn voxel_at<'v>(voxels: &'v [Voxel], slots: &[u16], p: Vec3, resolution: f32) -> Option<(usize, &'v Voxel)> {
-    let i = voxel_key(p, resolution).and_then(|k| find_voxel(voxels, slots, k))?;
+pub fn voxel_at<'v>(voxels: &'v [Voxel], slots: &[u16], p: Vec3, resolution: f32, slot: u32) -> Option<(usize, &'v Voxel)> {
+    let i = voxel_key(p, resolution, slot).and_then(|k| find_voxel(voxels, slots, k))?;
     voxels.get(i).map(|v| (i, v))
 }
 
+/// The mask slot of a point at pixel (u, v): from `masks` when the voxels were made with them (see
+/// [`voxelize`]), else 0.
+#[inline]
+pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16) -> u32 {
+    masks.map_or(0, |m| m.voxel_slot(u, v, params.min_confidence))
+}
+
 /// Calls `f(point, voxel)` for every sampled point of `frame` with the index and record of the voxel it fell
-/// into (`None` when it found no voxel: pool full or outside the key range). The one way every stage after
-/// voxelisation revisits the points.
+/// into (`None` when it found no voxel: pool full or outside the key range). `masks` must be the ones the
+/// voxels were made with. The one way every stage after voxelisation revisits the points.
 pub fn for_each_voxel_point(
     frame: &Frame<'_>,
     params: &Params,
+    masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     let r = params.voxel_resolution;
     points::for_each_point(frame, params, |p| {
-        f(p, voxel_at(voxels, slots, p.xyz, r));
+        f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v)));
     });
 }
 
@@ -236,7 +255,16 @@ pub struct VoxelStats {
 }
 
 /// Builds the voxel sums of `frame` (stage 1 and the first half of stage 2).
-pub fn voxelize(frame: &Frame<'_>, params: &Params, voxels: &mut Bounded<'_, Voxel>, slots: &mut [u16]) -> VoxelStats {
+/// Sums the sampled points of `frame` into voxels; with `masks`, the points of each instance mask (score ≥
+/// `min_confidence`) and those outside every mask go to separate voxels (mask slots), so no voxel, supervoxel
+/// or Gaussian mixes an object with what it touches (an m2smap extension for the semantic-fusion variants).
+pub fn voxelize(
+    frame: &Frame<'_>,
+    params: &Params,
+    masks: Option<&MaskSet<'_>>,
+    voxels: &mut Bounded<'_, Voxel>,
+    slots: &mut [u16],
+) -> VoxelStats {
     voxels.clear();
     slots.fill(0);
     let r = params.voxel_resolution;
@@ -244,7 +272,7 @@ pub fn voxelize(frame: &Frame<'_>, params: &Params, voxels: &mut Bounded<'_, Vox
     let max_index = (DROPPED as usize).min(slots.len());
     points::for_each_point(frame, params, |p| {
         stats.points += 1;
-        let Some(key) = voxel_key(p.xyz, r) else {
+        let Some(key) = voxel_key(p.xyz, r, point_slot(masks, params, p.u, p.v)) else {
             stats.dropped_points += 1;
             return;
         };
@@ -373,7 +401,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
     for i in 0..n {
         let Some(v) = voxels.get(i).copied() else { continue };
         let c = v.centroid(r);
-        let Some(key) = voxel_key(c, params.seed_resolution) else { continue };
+        let Some(key) = voxel_key(c, params.seed_resolution, key_slot(v.key)) else { continue };
         let is_seed = seeds
             .as_slice()
             .iter()
@@ -547,7 +575,7 @@ fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params
     let (r, rs) = (params.voxel_resolution, params.seed_resolution);
     for (i, v) in voxels.iter().enumerate() {
         let c = v.centroid(r);
-        let Some(key) = voxel_key(c, rs) else { continue };
+        let Some(key) = voxel_key(c, rs, key_slot(v.key)) else { continue };
         let centre = linalg::add(key_corner(key, rs), [0.5 * rs; 3]);
         let d = linalg::sub(c, centre);
         let d2 = linalg::dot(d, d);

@@ -55,7 +55,11 @@ pub fn render_panels(mapper: &Mapper<'_>, frame: &Frame<'_>, masks: Option<&Fram
         }
         let (u, v) = ((i as u32 % w) as f32, (i as u32 / w) as f32);
         let p = frame.intrinsics.unproject(u, v, frame.metres(raw));
-        if let Some(vx) = mapper.voxel_at(p).filter(|vx| is_assigned(vx.gaussian)) {
+        let slot = match (mapper.uses_mask_slots(), masks) {
+            (true, Some(m)) => m.view().voxel_slot(u as u16, v as u16, params.min_confidence),
+            _ => 0,
+        };
+        if let Some(vx) = mapper.voxel_at(p, slot).filter(|vx| is_assigned(vx.gaussian)) {
             labels[i] = (vx.gaussian, vx.supervoxel);
         }
     }
