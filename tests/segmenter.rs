@@ -47,7 +47,10 @@ fn finds_objects_that_stand_apart_and_keeps_them_unglued() {
         let mut ids = vec![0u16; gt.len()];
         let mut instances = [Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; 16];
         let view = frame.frame.view(&scene.camera);
-        let (_, n) = mapper.process_segmented(view, &mut ids, &mut instances, 0).unwrap();
+        let (report, n) = mapper.process_segmented(view, &mut ids, &mut instances, 0).unwrap();
+        // The segmented boxes are fitted: their points are found again after segmentation (the voxels of a
+        // segmented frame are not split by mask).
+        assert!(report.sqs >= 1, "frame {k}: no superquadric from segmenter masks");
         let (best, m) = score(&gt, &ids, &instances[..n]);
         predicted += n;
         matched += m;
@@ -62,6 +65,7 @@ fn finds_objects_that_stand_apart_and_keeps_them_unglued() {
         let checked = mapper.check(view, Some(masks)).unwrap();
         let metrics = semantic_metrics(&mapper, &checked, |u, v| gt[v as usize * 640 + u as usize]);
         assert_eq!(metrics.n_adh, 0, "frame {k}: adhesion with segmenter masks");
+        assert!(metrics.multi_gaussian_clusters > 0, "frame {k}: the metrics found no points");
     }
     let recall = ious.iter().filter(|&&x| x >= 0.7).count() as f64 / ious.len() as f64;
     let precision = matched as f64 / predicted.max(1) as f64;

@@ -145,6 +145,8 @@ pub struct Mapper<'s> {
     sq_points_peak: usize,
     report: FrameReport,
     frames: u32,
+    /// Whether the current frame's voxels are split in mask slots.
+    slotted: bool,
 }
 
 impl<'s> Mapper<'s> {
@@ -171,6 +173,7 @@ impl<'s> Mapper<'s> {
             sq_points_peak: 0,
             report: FrameReport::default(),
             frames: 0,
+            slotted: false,
         })
     }
 
@@ -183,12 +186,13 @@ impl<'s> Mapper<'s> {
     /// the semantic-fusion variants with the mask-consistent refinement on (`mask_split_min_share` < 1), else
     /// none. Geometry-only variants and PMSAO's post-merge annotation keep the paper's purely geometric voxels.
     pub fn voxel_masks<'a>(&self, checked: &CheckedFrame<'a>) -> Option<MaskSet<'a>> {
-        checked.masks.filter(|_| self.uses_mask_slots())
+        checked.masks.filter(|_| self.slotted)
     }
 
-    /// Whether frames given with masks are voxelised in mask slots (see [`Mapper::voxel_masks`]).
+    /// Whether the last frame's voxels were split in mask slots (see [`Mapper::voxel_masks`]): it came with
+    /// masks (not the segmenter's, which are made from the voxels), in a variant that uses them.
     pub fn uses_mask_slots(&self) -> bool {
-        self.params.variant.semantic_fusion() && self.params.mask_split_min_share < 1.0
+        self.slotted
     }
 
     /// Validates a frame and its masks without touching any state.
@@ -259,6 +263,9 @@ impl<'s> Mapper<'s> {
     /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks).
     pub fn stage_voxels(&mut self, checked: &CheckedFrame<'_>) {
         self.report = FrameReport { frame: self.frames + 1, ..FrameReport::default() };
+        self.slotted = checked.masks.is_some()
+            && self.params.variant.semantic_fusion()
+            && self.params.mask_split_min_share < 1.0;
         let voxel_masks = self.voxel_masks(checked);
         let stats = supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
         supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.params.voxel_resolution);
