@@ -121,11 +121,46 @@ impl Superquadric {
     /// [`Superquadric::distance`] at local coordinates `l`, with the unit normal ∇G/‖∇G‖ (local frame; the
     /// direction from the centre where ∇G vanishes).
     fn distance_at(&self, l: Vec3) -> (f32, Vec3) {
+        let t = self.terms(l);
+        self.distance_from(l, t, self.xy_power(t))
+    }
+
+    /// The terms (x/a1)^(2/ε2), (y/a2)^(2/ε2), (z/a3)^(2/ε1) of F at local coordinates `l`.
+    #[inline]
+    fn terms(&self, l: Vec3) -> Vec3 {
         let [a1, a2, a3] = self.scales;
         let [e1, e2] = self.eps;
-        let (fx, fy, fz) = (term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1));
+        [term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1)]
+    }
+
+    /// [`Superquadric::terms`] at `l`, reusing `base`'s terms `t` at the same `l` wherever the parameters a term
+    /// depends on are bit-identical (the Jacobian perturbs one parameter at a time).
+    #[inline]
+    fn terms_reusing(&self, base: &Superquadric, l: Vec3, t: Vec3) -> Vec3 {
+        let same = |a: f32, b: f32| a.to_bits() == b.to_bits();
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let e2_same = same(e2, base.eps[1]);
+        [
+            if e2_same && same(a1, base.scales[0]) { t[0] } else { term(l[0], a1, e2) },
+            if e2_same && same(a2, base.scales[1]) { t[1] } else { term(l[1], a2, e2) },
+            if same(e1, base.eps[0]) && same(a3, base.scales[2]) { t[2] } else { term(l[2], a3, e1) },
+        ]
+    }
+
+    /// S^(ε2/ε1) with S = (x/a1)^(2/ε2) + (y/a2)^(2/ε2), from the terms `t`.
+    #[inline]
+    fn xy_power(&self, t: Vec3) -> f32 {
+        let [e1, e2] = self.eps;
+        libm::powf(t[0] + t[1], e2 / e1)
+    }
+
+    /// [`Superquadric::distance_at`] from the terms `t` at `l` and their [`Superquadric::xy_power`] `sp`.
+    #[inline]
+    fn distance_from(&self, l: Vec3, t: Vec3, sp: f32) -> (f32, Vec3) {
+        let [e1, _] = self.eps;
+        let [fx, fy, fz] = t;
         let s = fx + fy;
-        let sp = libm::powf(s, e2 / e1);
         let f = sp + fz;
         let g = libm::powf(f, 0.5 * e1);
         // ∂F/∂x = (ε2/ε1)·S^(ε2/ε1 − 1)·(2/ε2)·fx/x = (2/ε1)·(S^(ε2/ε1)/S)·fx/x; ∂F/∂z = (2/ε1)·fz/z.
@@ -337,10 +372,17 @@ fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: 
         let mut jtr = [0.0f32; SQ_PARAMS];
         for &p in points {
             let l = base.local(p);
-            let (r, n) = base.distance_at(l);
+            let t = base.terms(l);
+            let sp = base.xy_power(t);
+            let (r, n) = base.distance_from(l, t, sp);
             let mut row = [0.0f32; SQ_PARAMS];
             for ((d, m), h) in row.iter_mut().zip(&perturbed).zip(&steps) {
-                *d = (m.distance_at(l).0 - r) / h;
+                // Each perturbed model differs from `base` in one shape parameter: only the terms (and the xy
+                // power) that depend on it are recomputed; the others are the same bits.
+                let tm = m.terms_reusing(&base, l, t);
+                let xy_same = [m.eps[0], m.eps[1], tm[0], tm[1]].map(f32::to_bits) == [base.eps[0], base.eps[1], t[0], t[1]].map(f32::to_bits);
+                let spm = if xy_same { sp } else { m.xy_power(tm) };
+                *d = (m.distance_from(l, tm, spm).0 - r) / h;
             }
             let dt = linalg::scale(linalg::mat_vec(&base.rotation, n), -1.0);
             let dr = linalg::cross(n, l);

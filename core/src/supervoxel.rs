@@ -146,9 +146,9 @@ pub struct SeedCell {
 /// of 1024; z: 10 bits). `None` when outside the key range (a point farther than 1023 cubes).
 #[inline]
 pub fn voxel_key(p: Vec3, resolution: f32) -> Option<u32> {
-    let ix = libm::floorf(p[0] / resolution) as i32;
-    let iy = libm::floorf(p[1] / resolution) as i32;
-    let iz = libm::floorf(p[2] / resolution) as i32;
+    let ix = linalg::floor_i32(p[0] / resolution);
+    let iy = linalg::floor_i32(p[1] / resolution);
+    let iz = linalg::floor_i32(p[2] / resolution);
     pack(ix, iy, iz)
 }
 
