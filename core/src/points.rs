@@ -55,6 +55,10 @@ pub fn is_sampled(i: u32, seed: u32, threshold: u64) -> bool {
 /// then only its set bits are visited.
 const BLOCK: usize = 32;
 
+/// Whether the per-pixel loop goes by blocks: a win where the test vectorises (x86-64, AArch64). Elsewhere (the
+/// Cortex-M7) a branch per pixel is cheaper, since the hash is then skipped for pixels without valid depth.
+const BLOCKWISE: bool = cfg!(any(target_arch = "x86_64", target_arch = "aarch64"));
+
 /// Bit j of a block mask.
 #[allow(clippy::indexing_slicing)] // evaluated at compile time: an out-of-range index would fail the build
 const BLOCK_BITS: [u32; BLOCK] = {
@@ -99,6 +103,30 @@ pub fn for_each_point(frame: &Frame<'_>, params: &Params, mut f: impl FnMut(&Poi
     let k = frame.intrinsics;
     let rgb_rows = frame.colour.chunks_exact(w * 3);
     for ((v, row), rgb_row) in frame.depth.chunks_exact(w).enumerate().zip(rgb_rows) {
+        let mut emit = |u: usize| {
+            let (Some(&raw), Some(rgb)) = (row.get(u), rgb_row.get(3 * u..3 * u + 3)) else { return };
+            let z = frame.metres(raw);
+            let point = Point {
+                u: u as u16,
+                v: v as u16,
+                xyz: k.unproject(u as f32, v as f32, z),
+                rgb: [
+                    rgb.first().copied().unwrap_or(0),
+                    rgb.get(1).copied().unwrap_or(0),
+                    rgb.get(2).copied().unwrap_or(0),
+                ],
+            };
+            f(&point);
+        };
+        if !BLOCKWISE {
+            let base = (v * w) as u32;
+            for (u, &raw) in row.iter().enumerate() {
+                if raw >= lo && raw <= hi && sampled.keeps(base + u as u32) {
+                    emit(u);
+                }
+            }
+            continue;
+        }
         for (b, block) in row.chunks(BLOCK).enumerate() {
             let first = b * BLOCK;
             let base = (v * w + first) as u32;
@@ -110,19 +138,7 @@ pub fn for_each_point(frame: &Frame<'_>, params: &Params, mut f: impl FnMut(&Poi
             while mask != 0 {
                 let u = first + mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                let (Some(&raw), Some(rgb)) = (row.get(u), rgb_row.get(3 * u..3 * u + 3)) else { continue };
-                let z = frame.metres(raw);
-                let point = Point {
-                    u: u as u16,
-                    v: v as u16,
-                    xyz: k.unproject(u as f32, v as f32, z),
-                    rgb: [
-                        rgb.first().copied().unwrap_or(0),
-                        rgb.get(1).copied().unwrap_or(0),
-                        rgb.get(2).copied().unwrap_or(0),
-                    ],
-                };
-                f(&point);
+                emit(u);
             }
         }
     }
