@@ -66,6 +66,18 @@ pub fn normalize_or(a: Vec3, fallback: Vec3) -> Vec3 {
     }
 }
 
+/// `libm::floorf(x) as i32` without the libm call: the same value for every f32 (NaN → 0, saturating at the
+/// `i32` range), since truncation differs from the floor only for negative non-integers.
+#[inline]
+pub fn floor_i32(x: f32) -> i32 {
+    let t = x as i32;
+    if (t as f32) > x {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
 /// A 3×3 matrix, row-major.
 pub type Mat3 = [[f32; 3]; 3];
 
@@ -489,5 +501,14 @@ mod tests {
         let direct_yz: f32 = pts.iter().map(|p| (p[1] - mean[1]) * (p[2] - mean[2])).sum::<f32>() / 3.0;
         assert!((cov[0] - direct_xx).abs() < 1e-6);
         assert!((cov[4] - direct_yz).abs() < 1e-6);
+    }
+
+    #[test]
+    fn floor_i32_matches_libm() {
+        let special = [0.0, -0.0, 0.5, -0.5, -1.0, -1.5, 2.9e9, -2.9e9, -2_147_483_648.0, f32::NAN, f32::INFINITY];
+        let strided = (0..=u32::MAX).step_by(4099).map(f32::from_bits);
+        for x in special.into_iter().chain(strided).chain([f32::NEG_INFINITY, f32::MIN, f32::MAX]) {
+            assert_eq!(floor_i32(x), libm::floorf(x) as i32, "{x:e}");
+        }
     }
 }

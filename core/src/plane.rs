@@ -80,8 +80,8 @@ impl Plane {
     pub fn cell_of(&self, p: Vec3, g_p: f32) -> Option<(usize, usize)> {
         let d = linalg::sub(p, self.centroid);
         let half = (PLANE_GRID / 2) as i32;
-        let a = libm::floorf(linalg::dot(d, self.e1) / g_p) as i32 + half;
-        let b = libm::floorf(linalg::dot(d, self.e2) / g_p) as i32 + half;
+        let a = linalg::floor_i32(linalg::dot(d, self.e1) / g_p) + half;
+        let b = linalg::floor_i32(linalg::dot(d, self.e2) / g_p) + half;
         let range = 0..PLANE_GRID as i32;
         (range.contains(&a) && range.contains(&b)).then_some((a as usize, b as usize))
     }

@@ -56,6 +56,15 @@ fn term(x: f32, a: f32, eps: f32) -> f32 {
     libm::powf(q.min(1e4), 1.0 / eps)
 }
 
+/// The powers of F at one point: the terms (x/a1)^(2/ε2), (y/a2)^(2/ε2), (z/a3)^(2/ε1), the xy power
+/// S^(ε2/ε1) of S = the first two terms' sum, and G = F^(ε1/2) = √H with F = S^(ε2/ε1) + the third term.
+#[derive(Debug, Clone, Copy, Default)]
+struct Powers {
+    t: Vec3,
+    xy: f32,
+    g: f32,
+}
+
 /// Signed power sign(w)·|w|^e used by the parametric surface.
 #[inline]
 fn spow(w: f32, e: f32) -> f32 {
@@ -121,13 +130,49 @@ impl Superquadric {
     /// [`Superquadric::distance`] at local coordinates `l`, with the unit normal ∇G/‖∇G‖ (local frame; the
     /// direction from the centre where ∇G vanishes).
     fn distance_at(&self, l: Vec3) -> (f32, Vec3) {
+        self.distance_from(l, &self.powers(l))
+    }
+
+    /// The powers of F at local coordinates `l` (five `powf`).
+    #[inline]
+    fn powers(&self, l: Vec3) -> Powers {
         let [a1, a2, a3] = self.scales;
         let [e1, e2] = self.eps;
-        let (fx, fy, fz) = (term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1));
-        let s = fx + fy;
-        let sp = libm::powf(s, e2 / e1);
+        let t = [term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1)];
+        let xy = libm::powf(t[0] + t[1], e2 / e1);
+        Powers { t, xy, g: libm::powf(xy + t[2], 0.5 * e1) }
+    }
+
+    /// [`Superquadric::powers`] at `l`, reusing `base`'s powers `b` at the same `l` wherever the inputs of a
+    /// power are bit-identical (the Jacobian perturbs one shape parameter at a time).
+    #[inline]
+    fn powers_reusing(&self, base: &Superquadric, l: Vec3, b: &Powers) -> Powers {
+        let same = |x: &[f32], y: &[f32]| x.iter().map(|v| v.to_bits()).eq(y.iter().map(|v| v.to_bits()));
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let (b1, b2, b3) = (base.scales[0], base.scales[1], base.scales[2]);
+        let (be1, be2) = (base.eps[0], base.eps[1]);
+        let t = [
+            if same(&[a1, e2], &[b1, be2]) { b.t[0] } else { term(l[0], a1, e2) },
+            if same(&[a2, e2], &[b2, be2]) { b.t[1] } else { term(l[1], a2, e2) },
+            if same(&[a3, e1], &[b3, be1]) { b.t[2] } else { term(l[2], a3, e1) },
+        ];
+        let xy = if same(&[t[0], t[1], e1, e2], &[b.t[0], b.t[1], be1, be2]) {
+            b.xy
+        } else {
+            libm::powf(t[0] + t[1], e2 / e1)
+        };
+        let g = if same(&[xy, t[2], e1], &[b.xy, b.t[2], be1]) { b.g } else { libm::powf(xy + t[2], 0.5 * e1) };
+        Powers { t, xy, g }
+    }
+
+    /// [`Superquadric::distance_at`] from the [`Superquadric::powers`] `pw` at `l`.
+    #[inline]
+    fn distance_from(&self, l: Vec3, pw: &Powers) -> (f32, Vec3) {
+        let [e1, _] = self.eps;
+        let [fx, fy, fz] = pw.t;
+        let (s, sp, g) = (fx + fy, pw.xy, pw.g);
         let f = sp + fz;
-        let g = libm::powf(f, 0.5 * e1);
         // ∂F/∂x = (ε2/ε1)·S^(ε2/ε1 − 1)·(2/ε2)·fx/x = (2/ε1)·(S^(ε2/ε1)/S)·fx/x; ∂F/∂z = (2/ε1)·fz/z.
         let ratio = |t: f32, x: f32| if libm::fabsf(x) > 1e-9 { t / x } else { 0.0 };
         let kxy = if s > 1e-20 { (2.0 / e1) * sp / s } else { 0.0 };
@@ -272,8 +317,19 @@ fn extent_excess(sq: &Superquadric, points: &[Vec3], margin: impl Fn(f32) -> f32
 /// The LM objective: Σ (radial distance)² over the points, plus the size prior w · Σ a_k², plus the extent
 /// constraint `EXTENT_WEIGHT · N · Σ excess²` ([`extent_excess`]).
 fn cost(sq: &Superquadric, points: &[Vec3], w: f32) -> f32 {
+    cost_keeping(sq, points, w, &mut [])
+}
+
+/// [`cost`], keeping each point's [`Powers`] in `kept` (as many as it holds).
+fn cost_keeping(sq: &Superquadric, points: &[Vec3], w: f32, kept: &mut [Powers]) -> f32 {
+    let mut kept = kept.iter_mut();
     let data: f32 = points.iter().map(|&p| {
-        let d = sq.distance(p);
+        let l = sq.local(p);
+        let pw = sq.powers(l);
+        if let Some(k) = kept.next() {
+            *k = pw;
+        }
+        let d = sq.distance_from(l, &pw).0;
         d * d
     }).sum();
     let excess = extent_excess(sq, points, |_| EXTENT_MARGIN).metres;
@@ -284,6 +340,15 @@ fn cost(sq: &Superquadric, points: &[Vec3], w: f32) -> f32 {
     } else {
         f32::INFINITY
     }
+}
+
+/// Whether two superquadrics have bit-identical parameters (then every evaluation of them is the same).
+fn same_bits(a: &Superquadric, b: &Superquadric) -> bool {
+    let bits = |q: &Superquadric| {
+        let flat = q.scales.into_iter().chain(q.eps).chain(q.centre).chain(q.rotation.into_iter().flatten());
+        flat.map(f32::to_bits)
+    };
+    bits(a).eq(bits(b))
 }
 
 /// Percentile (0–1) of a small sample, by sorting a copy.
@@ -372,6 +437,9 @@ fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: 
     let mut theta = run.theta;
     let mut current = run.cost;
     let mut lambda = run.lambda;
+    // The powers of the last accepted candidate at every point: the next Jacobian is taken at that same model.
+    let mut kept = [Powers::default(); MAX_SAMPLES];
+    let mut kept_model: Option<Superquadric> = None;
     for _ in 0..iterations {
         if run.converged {
             break;
@@ -409,12 +477,16 @@ fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: 
         let shape_columns = if params.variant.ellipsoids_only() { 3 } else { 5 };
         let mut jtj = [[0.0f32; SQ_PARAMS]; SQ_PARAMS];
         let mut jtr = [0.0f32; SQ_PARAMS];
-        for &p in points {
+        let reuse = points.len() <= kept.len() && kept_model.is_some_and(|k| same_bits(&k, &base));
+        for (&p, k) in points.iter().zip(kept.iter().chain(core::iter::repeat(&Powers::default()))) {
             let l = base.local(p);
-            let (r, n) = base.distance_at(l);
+            let pw = if reuse { *k } else { base.powers(l) };
+            let (r, n) = base.distance_from(l, &pw);
             let mut row = [0.0f32; SQ_PARAMS];
             for ((d, m), h) in row.iter_mut().zip(&perturbed).zip(&steps).take(shape_columns) {
-                *d = (m.distance_at(l).0 - r) / h;
+                // Each perturbed model differs from `base` in one shape parameter: only the powers that depend
+                // on it are recomputed; the others are the same bits.
+                *d = (m.distance_from(l, &m.powers_reusing(&base, l, &pw)).0 - r) / h;
             }
             let dt = linalg::scale(linalg::mat_vec(&base.rotation, n), -1.0);
             let dr = linalg::cross(n, l);
@@ -492,8 +564,11 @@ fn levenberg_marquardt(points: &[Vec3], run: &mut Run, iterations: u32, params: 
                 *t += d;
             }
             clamp(&mut candidate);
-            let c = cost(&model(&candidate, &run.base), points, w);
+            let sq = model(&candidate, &run.base);
+            let c = cost_keeping(&sq, points, w, &mut kept);
+            kept_model = None;
             if c < current {
+                kept_model = Some(sq);
                 if current - c < 1e-4 * current {
                     run.converged = true;
                 }

@@ -149,9 +149,9 @@ pub struct SeedCell {
 /// [`crate::masks::MaskSet::voxel_slot`]); without masks every point is in slot 0.
 #[inline]
 pub fn voxel_key(p: Vec3, resolution: f32, slot: u32) -> Option<u32> {
-    let ix = libm::floorf(p[0] / resolution) as i32;
-    let iy = libm::floorf(p[1] / resolution) as i32;
-    let iz = libm::floorf(p[2] / resolution) as i32;
+    let ix = linalg::floor_i32(p[0] / resolution);
+    let iy = linalg::floor_i32(p[1] / resolution);
+    let iz = linalg::floor_i32(p[2] / resolution);
     pack(ix, iy, iz, slot)
 }
 
