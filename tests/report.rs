@@ -21,6 +21,11 @@ fn fmt(x: &serde_json::Value) -> String {
     x.as_f64().map_or_else(|| "–".to_string(), |x| format!("{x:.3}"))
 }
 
+/// A length as the report prints it (0.1 mm).
+fn fmt_m(x: &serde_json::Value) -> String {
+    x.as_f64().map_or_else(|| "–".to_string(), |x| format!("{x:.4}"))
+}
+
 /// The rows of the table that follows `heading`: first cell → (dataset cell → remaining cells).
 fn table(md: &str, heading: &str) -> HashMap<(String, String), Vec<String>> {
     let start = md.find(heading).unwrap_or_else(|| panic!("report has no {heading:?}"));
@@ -114,7 +119,8 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
         let s = summary(&out, "tabletop", v);
         let row = &t3[&(method_name(v).to_string(), "tabletop".to_string())];
         for (cell, k) in row.iter().zip(["g2r_rmse_m", "g2r_unoccluded_rmse_m", "r2g_rmse_m", "payload_bytes", "bytes_per_primitive", "hz"]) {
-            assert_eq!(*cell, fmt(&s[k]), "tabletop {v:?} {k}");
+            let expected = if k.ends_with("_m") { fmt_m(&s[k]) } else { fmt(&s[k]) };
+            assert_eq!(*cell, expected, "tabletop {v:?} {k}");
         }
     }
     let png = image::open(out.join("comparison.png")).unwrap();
