@@ -83,7 +83,8 @@ impl<'a> MaskSet<'a> {
 
     /// The voxel slot of pixel (u, v) (see [`crate::supervoxel::voxel_key`]): 0 outside every instance of
     /// score ≥ `min_confidence`, else 1 + (position of the first such instance holding the pixel) mod 7. Points
-    /// of different instances (and of no instance) then never share a voxel.
+    /// of different instances (and of no instance) then never share a voxel — up to 7 instances; beyond, two
+    /// instances whose positions differ by a multiple of 7 share a slot.
     pub fn voxel_slot(&self, u: u16, v: u16, min_confidence: f32) -> u32 {
         if u >= self.width || v >= self.height {
             return 0;
