@@ -3,12 +3,14 @@
 //! The implicit function is F(x) = ((x/a1)^(2/ε2) + (y/a2)^(2/ε2))^(ε2/ε1) + (z/a3)^(2/ε1), each term computed
 //! as ((x/a)²)^(1/ε) so bases stay non-negative (squared ratios are capped at 10⁴ so far points stay finite).
 //! H = F^ε1, the residual is r = √H − 1 and the error E_sq = mean(r² · ‖p̃‖) with p̃ = Rᵀ(p − t) and ‖p̃‖
-//! floored at 1 mm. The 11 parameters are (a1, a2, a3, ε1, ε2, t, r) with R = R0 · exp([r]×): R0 is the
+//! floored at 1 mm. The 11 parameters are (a1, a2, a3, ε1, ε2, t, r) with R = R0 · exp(\[r\]×): R0 is the
 //! initial frame, so the rotation update starts at zero.
 //!
 //! **Initialisation.** The object's PCA frame (e0, e1, e2) gives three right-handed candidate frames, one per
 //! choice of the SQ's z axis (cyclic permutations); in each, the 5th and 95th percentiles of the sampled points
-//! give the initial centre and half-axes, with ε1 = ε2 = 0.5. **Levenberg–Marquardt** (equation 13) on
+//! give the initial centre and half-axes, with (ε1, ε2) box-like (0.3, 0.3), cylinder-like (0.3, 1) or an
+//! ellipsoid (1, 1), each plain and deepened along the line of sight: 18 guesses, each screened with 12 LM
+//! iterations (MMQ: the 6 ellipsoids, ε held at 1). **Levenberg–Marquardt** (equation 13) on
 //! `lm_samples` points, at most `lm_max_iters` iterations: forward-difference Jacobian accumulated point by point
 //! into JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹), λ ÷ 3 on success and × 10 on failure,
 //! parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale ≥ 0.005 m) after each step. The candidate
@@ -19,8 +21,15 @@
 //! (`sq_scale_prior`, w = 10⁻⁴ m⁻²: a few per cent of a typical data term), which picks the most compact
 //! shape that still passes through the observed surface; E_sq itself is reported and thresholded without it.
 //!
-//! **Validity.** Finite parameters, within bounds, E_sq < `sq_max_error`, every half-axis at most 1.5 × half
-//! the diagonal of the support's 3-D box and the centre inside that box grown by half its diagonal.
+//! **Extent constraint.** Seen side-on, an object's extent is its silhouette: the LM objective also penalises
+//! (weight N per m²) every end of an axis that reaches more than 2 cm beyond the fit points, except the far end
+//! of an axis that looks away from the camera, which may extend by |axis · view| · 2 · max a (the unseen back).
+//! Without it a box seen on one face grew freely along that face (the data cost is flat there).
+//!
+//! **Validity.** Finite parameters, within bounds, E_sq < `sq_max_error`, the trimmed RMS point distance (best
+//! 90 %) at most `sq_max_rms`, every half-axis at most 1.5 × half the diagonal of the support's 5–95 % box, the
+//! centre inside that box grown by half its diagonal, and the extent constraint with a looser margin (3 cm +
+//! 15 %). When the best screened guess fails, the next three are run to the end in cost order.
 
 use bytemuck::Zeroable;
 
@@ -669,8 +678,8 @@ pub fn refine(points: &[Vec3], start: &Superquadric, params: &Params) -> Option<
     Some(fit)
 }
 
-/// Whether `sq` stays within the extent of its support `points` (camera frame): [`extent_excess`] with a looser
-/// margin of 3 cm + 15 % of the half-axis than the LM's soft constraint ([`EXTENT_MARGIN`]).
+/// Whether `sq` stays within the extent of its support `points` (camera frame): the LM's extent constraint
+/// (see the module docs) with a looser margin of 3 cm + 15 % of the half-axis instead of 2 cm.
 pub fn stays_within_support(sq: &Superquadric, points: &[Vec3]) -> bool {
     extent_excess(sq, points, |a| SUPPORT_MARGIN + 0.15 * a).metres.iter().all(|&e| e <= 0.0)
 }
