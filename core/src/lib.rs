@@ -20,10 +20,19 @@
 //!
 //! ## Pipeline (one module per stage of the paper)
 //! 1. [`points`]: depth range filter and the seeded 15 % sample (paper §VI).
-//! 2. [`supervoxel`]: 3 cm voxels and VCCS-style flow-constrained supervoxels (paper §III-A).
+//! 2. [`supervoxel`]: 3 cm voxels and VCCS-style flow-constrained supervoxels (paper §III-A); with masks in the
+//!    semantic-fusion variants, each instance's points get their own voxels (mask slots), so nothing downstream
+//!    mixes an object with what it touches.
 //! 3. [`gmm`]: IH-GMM-style hierarchical refinement into compact Gaussians, the set `C_g` (paper §III-A).
+//! 4. [`annotate`]: projection-guided mask matching (paper §III-B).
+//! 5. [`fuse`]: semantic-constrained fusion Γ (paper §IV-A); [`plane`]: flat planes and bounded planes (§IV-B);
+//!    [`objects`]: object support sets and the residual set (§IV-C).
+//! 6. [`superquadric`]: object superquadrics by Levenberg–Marquardt (§V-A); [`track`]: association,
+//!    equivalence alignment and smoothing (§V-B).
+//! 7. [`map`]: the primitives and their reconstruction samples (§V-C); [`wire`]: the postcard wire format.
 //!
-//! Later stages (annotation, fusion, planes, superquadrics, tracks, the wire format) build on the same pools.
+//! [`segment`] makes instance masks from depth alone for datasets without them; [`snapshot`] carries the tracks
+//! across a reset; [`mapper`] runs the stages over the borrowed pools.
 //!
 //! Units: metres in the camera frame (x right, y down, z forward), pixels for image coordinates, radians unless a
 //! name ends in `_deg`.
