@@ -112,6 +112,26 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
     // The full method with perfect masks never glues objects together, against ground truth.
     assert_eq!(summary(&out, "desk", Variant::Full)["n_adh"].as_f64(), Some(0.0));
 
+    // The targets table: one row per dataset with ground truth, each verdict the summary's.
+    let start = md.find("## Targets").expect("a targets section");
+    let rows: Vec<Vec<String>> = md[start..]
+        .lines()
+        .skip_while(|l| !l.starts_with('|'))
+        .take_while(|l| l.starts_with('|'))
+        .skip(2)
+        .map(|l| l.trim_matches('|').split('|').map(|c| c.trim().to_string()).collect())
+        .collect();
+    assert_eq!(rows.len(), 2, "one targets row per synthetic dataset");
+    for row in rows {
+        let full = summary(&out, &row[0], Variant::Full);
+        let pmsao = summary(&out, &row[0], Variant::Pmsao);
+        let yes = |ok: bool| if ok { "yes" } else { "**no**" };
+        assert_eq!(row[1], yes(full["n_adh"].as_f64() == Some(0.0)));
+        assert_eq!(row[2], yes(full["a_s"].as_f64().is_some_and(|a| a >= 1.0)));
+        assert_eq!(row[3], yes(pmsao["n_adh"].as_f64().is_some_and(|n| n > 0.0)));
+        assert!(row[4].starts_with(yes(full["g2r_rmse_m"].as_f64().is_some_and(|g| g <= 0.025))));
+    }
+
     // The reconstruction table and the figure.
     let t3 = table(&md, "## Reconstruction and payload");
     assert_eq!(t3.len(), Variant::ALL.len() * 2);

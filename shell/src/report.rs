@@ -238,6 +238,30 @@ pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
         }
     }
 
+    let checks: Vec<&DatasetRuns> = datasets.iter().filter(|d| d.path.join("gt").is_dir()).collect();
+    if !checks.is_empty() {
+        let _ = writeln!(s, "\n## Targets on the datasets with ground truth (`gt/`)\n");
+        let _ = writeln!(
+            s,
+            "| Dataset | full N_adh = 0 | full A_s = 1 | pmsao N_adh > 0 | full G2R ≤ 0.025 m | full fewest primitives |\n|---|---|---|---|---|---|"
+        );
+        let yes = |ok: bool| if ok { "yes" } else { "**no**" };
+        for d in checks {
+            let (Some(f), Some(p)) = (d.summary(Variant::Full), d.summary(Variant::Pmsao)) else { continue };
+            let fewest = best_total(d).is_some_and(|(b, t)| b == Variant::Full || f.primitives.total == Some(t));
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} ({}) | {} |",
+                d.name,
+                yes(f.n_adh == Some(0.0)),
+                yes(f.a_s.is_some_and(|a| a >= 1.0)),
+                yes(p.n_adh.is_some_and(|n| n > 0.0)),
+                yes(f.g2r_rmse_m.is_some_and(|g| g <= 0.025)),
+                cell_m(f.g2r_rmse_m),
+                yes(fewest)
+            );
+        }
+    }
     let _ = writeln!(s, "\n## Reconstruction and payload\n");
     let _ = writeln!(s, "![comparison](comparison.svg)\n");
     let _ = writeln!(
