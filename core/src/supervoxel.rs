@@ -22,7 +22,7 @@ use bytemuck::Zeroable;
 use crate::frame::Frame;
 use crate::linalg::{self, Moments, Vec3};
 use crate::params::{Params, VOXEL_GRID_HALF_EXTENT};
-use crate::masks::MaskSet;
+use crate::masks::{MaskSet, SlotCache};
 use crate::points;
 use crate::pool::{self, Bounded, Probe};
 
@@ -192,20 +192,43 @@ pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
     }
 }
 
+/// The 26 neighbour offsets (dx, dy, dz) in visiting order (z outermost, x innermost), each with the change it
+/// makes to a packed key when no field leaves its range.
+#[allow(clippy::indexing_slicing)] // evaluated at compile time: an out-of-range index would fail the build
+const NEIGHBOURS: [([i32; 3], i32); 26] = {
+    let mut out = [([0; 3], 0); 26];
+    let (mut n, mut k) = (0, 0);
+    while k < 27 {
+        let (dx, dy, dz) = (k % 3 - 1, k / 3 % 3 - 1, k / 9 - 1);
+        if k != 13 {
+            out[n] = ([dx, dy, dz], dx + (dy << 10) + (dz << 20));
+            n += 1;
+        }
+        k += 1;
+    }
+    out
+};
+
 /// Calls `f(j)` for each occupied voxel j among the 26 neighbours of the voxel with `key` (in its mask slot).
 #[inline]
 pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl FnMut(usize)) {
     let (x, y, z) = unpack(key);
-    let slot = key_slot(key);
-    for dz in -1..=1 {
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                if dx == 0 && dy == 0 && dz == 0 {
-                    continue;
-                }
-                if let Some(j) = pack(x + dx, y + dy, z + dz, slot).and_then(|k| find_voxel(voxels, slots, k)) {
-                    f(j);
-                }
+    let h = VOXEL_GRID_HALF_EXTENT;
+    let mut visit = |k: u32| {
+        if let Some(j) = find_voxel(voxels, slots, k) {
+            f(j);
+        }
+    };
+    if -h < x && x < h && -h < y && y < h && 0 < z && z < h {
+        // Inside the key range with a margin of one: every neighbour key is the key plus a fixed offset.
+        for &(_, delta) in &NEIGHBOURS {
+            visit(key.wrapping_add_signed(delta));
+        }
+    } else {
+        let slot = key_slot(key);
+        for &([dx, dy, dz], _) in &NEIGHBOURS {
+            if let Some(k) = pack(x + dx, y + dy, z + dz, slot) {
+                visit(k);
             }
         }
     }
@@ -222,8 +245,8 @@ pub fn voxel_at<'v>(voxels: &'v [Voxel], slots: &[u16], p: Vec3, resolution: f32
 /// The mask slot of a point at pixel (u, v): from `masks` when the voxels were made with them (see
 /// [`voxelize`]), else 0.
 #[inline]
-pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16) -> u32 {
-    masks.map_or(0, |m| m.voxel_slot(u, v, params.min_confidence))
+pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16, cache: &mut SlotCache) -> u32 {
+    masks.map_or(0, |m| m.voxel_slot_cached(u, v, params.min_confidence, cache))
 }
 
 /// Calls `f(point, voxel)` for every sampled point of `frame` with the index and record of the voxel it fell
@@ -238,8 +261,9 @@ pub fn for_each_voxel_point(
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     let r = params.voxel_resolution;
+    let mut slot_cache = SlotCache::default();
     points::for_each_point(frame, params, |p| {
-        f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v)));
+        f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
     });
 }
 
@@ -270,9 +294,10 @@ pub fn voxelize(
     let r = params.voxel_resolution;
     let mut stats = VoxelStats::default();
     let max_index = (DROPPED as usize).min(slots.len());
+    let mut slot_cache = SlotCache::default();
     points::for_each_point(frame, params, |p| {
         stats.points += 1;
-        let Some(key) = voxel_key(p.xyz, r, point_slot(masks, params, p.u, p.v)) else {
+        let Some(key) = voxel_key(p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)) else {
             stats.dropped_points += 1;
             return;
         };
