@@ -423,25 +423,30 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
 
     // --- seeds: nearest voxel to the centre of each sufficiently occupied seed cube --------------------------
     choose_seed_cells(voxels, seeds, params);
+    // A voxel is a seed when it is the best voxel of a cell with enough voxels (each voxel lies in one cell):
+    // marked in the scratch, then started in voxel order.
+    for cell in seeds.as_slice().iter().filter(|s| s.voxels > 0 && s.voxels >= params.seed_min_voxels) {
+        if let Some(st) = scratch.get_mut(cell.best as usize) {
+            *st = 1;
+        }
+    }
     for i in 0..n {
-        let Some(v) = voxels.get(i).copied() else { continue };
-        let c = v.centroid(r);
-        let Some(key) = voxel_key(c, params.seed_resolution, key_slot(v.key)) else { continue };
-        let is_seed = seeds
-            .as_slice()
-            .iter()
-            .position(|s| s.key == key && s.voxels > 0)
-            .and_then(|k| seeds.get(k))
-            .is_some_and(|s| s.best as usize == i && s.voxels >= params.seed_min_voxels);
-        if !is_seed {
+        if scratch.get(i).copied() != Some(1) {
             continue;
         }
-        if let Some(id) = supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
-            if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
-                vox.supervoxel = id as u16;
-                *st = 1;
+        let Some(v) = voxels.get(i).copied() else { continue };
+        match supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
+            Some(id) => {
+                if let Some(vox) = voxels.get_mut(i) {
+                    vox.supervoxel = id as u16;
+                }
+                stats.seeds += 1;
             }
-            stats.seeds += 1;
+            None => {
+                if let Some(st) = scratch.get_mut(i) {
+                    *st = 0;
+                }
+            }
         }
     }
 
