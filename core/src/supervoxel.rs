@@ -603,14 +603,22 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
 fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params: &Params) {
     seeds.clear();
     let (r, rs) = (params.voxel_resolution, params.seed_resolution);
+    let mut last = 0;
     for (i, v) in voxels.iter().enumerate() {
         let c = v.centroid(r);
         let Some(key) = voxel_key(c, rs, key_slot(v.key)) else { continue };
         let centre = linalg::add(key_corner(key, rs), [0.5 * rs; 3]);
         let d = linalg::sub(c, centre);
         let d2 = linalg::dot(d, d);
-        // Seed cells are few (tens per frame): a linear search is cheaper than a second hash.
-        match seeds.as_mut_slice().iter_mut().find(|s| s.key == key) {
+        // Seed cells are few (tens per frame): a linear search is cheaper than a second hash, and neighbouring
+        // voxels mostly share the last cell found (keys are unique, so the first match is the only one).
+        let cells = seeds.as_mut_slice();
+        let k = match cells.get(last) {
+            Some(s) if s.key == key => Some(last),
+            _ => cells.iter().position(|s| s.key == key),
+        };
+        last = k.unwrap_or(last);
+        match k.and_then(|k| cells.get_mut(k)) {
             Some(cell) => {
                 cell.voxels = cell.voxels.saturating_add(1);
                 if d2 < cell.best_d2 {
