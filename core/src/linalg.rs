@@ -357,9 +357,10 @@ pub fn sym_eigen(m: Sym3) -> Eigen3 {
         if off <= 1e-6 * scale_ref || off == 0.0 {
             break;
         }
-        for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
-            rotate(&mut a, &mut v, p, q);
-        }
+        // Constant (p, q) per call, so each rotation is inlined with fixed indices.
+        rotate(&mut a, &mut v, 0, 1);
+        rotate(&mut a, &mut v, 0, 2);
+        rotate(&mut a, &mut v, 1, 2);
     }
     let values = [a[0][0], a[1][1], a[2][2]];
     // Columns of v are eigenvectors.
@@ -381,6 +382,7 @@ pub fn sym_eigen(m: Sym3) -> Eigen3 {
 
 /// One Jacobi rotation zeroing a[p][q] (p < q < 3), applied to `a` (both sides) and accumulated in `v`.
 #[allow(clippy::indexing_slicing, clippy::needless_range_loop)] // p, q ∈ {0, 1, 2} by construction; the arrays are 3×3.
+#[inline(always)]
 fn rotate(a: &mut [[f32; 3]; 3], v: &mut [[f32; 3]; 3], p: usize, q: usize) {
     let apq = a[p][q];
     if apq == 0.0 {

@@ -478,7 +478,7 @@ impl<'s> Mapper<'s> {
             let gaussians = self.gaussians.as_slice();
             let sq_points = &mut *self.sq_points;
             let eligible = |k: usize| objects.get(k).is_some_and(|o| o.points >= params.sq_min_points);
-            supervoxel::for_each_voxel_point(&checked.frame, &params, voxel_masks.as_ref(), self.voxels.as_slice(), self.slots, |p, v| {
+            let sample = |p: &Point, v: Option<(usize, &Voxel)>| {
                 let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
                 let k = g.owner as usize;
                 if g.role != ROLE_OBJECT || k < first || k >= last || !eligible(k) {
@@ -497,7 +497,11 @@ impl<'s> Mapper<'s> {
                     }
                 }
                 *c += 1;
-            });
+            };
+            // The point pass only samples for eligible objects: skipped when there are none.
+            if (first..last).any(eligible) {
+                supervoxel::for_each_voxel_point(&checked.frame, &params, voxel_masks.as_ref(), self.voxels.as_slice(), self.slots, sample);
+            }
             for k in first..last {
                 let n = taken.get(k - first).copied().unwrap_or(0);
                 self.sq_points_peak = self.sq_points_peak.max((k - first) * samples + n);

@@ -16,6 +16,13 @@ pub struct Instance {
     pub bbox: [u16; 4],
 }
 
+/// The last id → voxel slot lookup of [`MaskSet::voxel_slot_cached`] (id 0: nothing cached).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SlotCache {
+    id: u16,
+    slot: u32,
+}
+
 /// How the per-pixel masks are stored.
 #[derive(Debug, Clone, Copy)]
 pub enum MaskPixels<'a> {
@@ -86,21 +93,34 @@ impl<'a> MaskSet<'a> {
     /// of different instances (and of no instance) then never share a voxel — up to 7 instances; beyond, two
     /// instances whose positions differ by a multiple of 7 share a slot.
     pub fn voxel_slot(&self, u: u16, v: u16, min_confidence: f32) -> u32 {
+        self.voxel_slot_cached(u, v, min_confidence, &mut SlotCache::default())
+    }
+
+    /// [`MaskSet::voxel_slot`] that keeps the last id-image lookup in `cache` (neighbouring pixels mostly share
+    /// an id). One cache serves one `min_confidence`.
+    #[inline]
+    pub fn voxel_slot_cached(&self, u: u16, v: u16, min_confidence: f32, cache: &mut SlotCache) -> u32 {
         if u >= self.width || v >= self.height {
             return 0;
         }
         let i = v as usize * self.width as usize + u as usize;
         let usable = |inst: &Instance| inst.score >= min_confidence;
-        let k = match self.pixels {
+        let slot_of = |k: Option<usize>| k.map_or(0, |k| 1 + (k % 7) as u32);
+        match self.pixels {
             MaskPixels::IdImage(ids) => match ids.get(i) {
-                Some(&id) if id != 0 => self.instances.iter().position(|inst| inst.id == id && usable(inst)),
-                _ => None,
+                Some(&id) if id != 0 => {
+                    if cache.id != id {
+                        let k = self.instances.iter().position(|inst| inst.id == id && usable(inst));
+                        *cache = SlotCache { id, slot: slot_of(k) };
+                    }
+                    cache.slot
+                }
+                _ => 0,
             },
-            MaskPixels::BitPlanes(_) => {
-                (0..self.instances.len()).find(|&k| self.instances.get(k).is_some_and(usable) && self.contains(k, u, v))
-            }
-        };
-        k.map_or(0, |k| 1 + (k % 7) as u32)
+            MaskPixels::BitPlanes(_) => slot_of(
+                (0..self.instances.len()).find(|&k| self.instances.get(k).is_some_and(usable) && self.contains(k, u, v)),
+            ),
+        }
     }
 
     /// Whether pixel (u, v) belongs to the instance at position `k` of `instances`. Out-of-range → false.

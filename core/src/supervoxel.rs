@@ -22,7 +22,7 @@ use bytemuck::Zeroable;
 use crate::frame::Frame;
 use crate::linalg::{self, Moments, Vec3};
 use crate::params::{Params, VOXEL_GRID_HALF_EXTENT};
-use crate::masks::MaskSet;
+use crate::masks::{MaskSet, SlotCache};
 use crate::points;
 use crate::pool::{self, Bounded, Probe};
 
@@ -192,20 +192,43 @@ pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
     }
 }
 
+/// The 26 neighbour offsets (dx, dy, dz) in visiting order (z outermost, x innermost), each with the change it
+/// makes to a packed key when no field leaves its range.
+#[allow(clippy::indexing_slicing)] // evaluated at compile time: an out-of-range index would fail the build
+const NEIGHBOURS: [([i32; 3], i32); 26] = {
+    let mut out = [([0; 3], 0); 26];
+    let (mut n, mut k) = (0, 0);
+    while k < 27 {
+        let (dx, dy, dz) = (k % 3 - 1, k / 3 % 3 - 1, k / 9 - 1);
+        if k != 13 {
+            out[n] = ([dx, dy, dz], dx + (dy << 10) + (dz << 20));
+            n += 1;
+        }
+        k += 1;
+    }
+    out
+};
+
 /// Calls `f(j)` for each occupied voxel j among the 26 neighbours of the voxel with `key` (in its mask slot).
 #[inline]
 pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl FnMut(usize)) {
     let (x, y, z) = unpack(key);
-    let slot = key_slot(key);
-    for dz in -1..=1 {
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                if dx == 0 && dy == 0 && dz == 0 {
-                    continue;
-                }
-                if let Some(j) = pack(x + dx, y + dy, z + dz, slot).and_then(|k| find_voxel(voxels, slots, k)) {
-                    f(j);
-                }
+    let h = VOXEL_GRID_HALF_EXTENT;
+    let mut visit = |k: u32| {
+        if let Some(j) = find_voxel(voxels, slots, k) {
+            f(j);
+        }
+    };
+    if -h < x && x < h && -h < y && y < h && 0 < z && z < h {
+        // Inside the key range with a margin of one: every neighbour key is the key plus a fixed offset.
+        for &(_, delta) in &NEIGHBOURS {
+            visit(key.wrapping_add_signed(delta));
+        }
+    } else {
+        let slot = key_slot(key);
+        for &([dx, dy, dz], _) in &NEIGHBOURS {
+            if let Some(k) = pack(x + dx, y + dy, z + dz, slot) {
+                visit(k);
             }
         }
     }
@@ -222,8 +245,8 @@ pub fn voxel_at<'v>(voxels: &'v [Voxel], slots: &[u16], p: Vec3, resolution: f32
 /// The mask slot of a point at pixel (u, v): from `masks` when the voxels were made with them (see
 /// [`voxelize`]), else 0.
 #[inline]
-pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16) -> u32 {
-    masks.map_or(0, |m| m.voxel_slot(u, v, params.min_confidence))
+pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16, cache: &mut SlotCache) -> u32 {
+    masks.map_or(0, |m| m.voxel_slot_cached(u, v, params.min_confidence, cache))
 }
 
 /// Calls `f(point, voxel)` for every sampled point of `frame` with the index and record of the voxel it fell
@@ -238,8 +261,9 @@ pub fn for_each_voxel_point(
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     let r = params.voxel_resolution;
+    let mut slot_cache = SlotCache::default();
     points::for_each_point(frame, params, |p| {
-        f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v)));
+        f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
     });
 }
 
@@ -270,9 +294,10 @@ pub fn voxelize(
     let r = params.voxel_resolution;
     let mut stats = VoxelStats::default();
     let max_index = (DROPPED as usize).min(slots.len());
+    let mut slot_cache = SlotCache::default();
     points::for_each_point(frame, params, |p| {
         stats.points += 1;
-        let Some(key) = voxel_key(p.xyz, r, point_slot(masks, params, p.u, p.v)) else {
+        let Some(key) = voxel_key(p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)) else {
             stats.dropped_points += 1;
             return;
         };
@@ -398,25 +423,30 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
 
     // --- seeds: nearest voxel to the centre of each sufficiently occupied seed cube --------------------------
     choose_seed_cells(voxels, seeds, params);
+    // A voxel is a seed when it is the best voxel of a cell with enough voxels (each voxel lies in one cell):
+    // marked in the scratch, then started in voxel order.
+    for cell in seeds.as_slice().iter().filter(|s| s.voxels > 0 && s.voxels >= params.seed_min_voxels) {
+        if let Some(st) = scratch.get_mut(cell.best as usize) {
+            *st = 1;
+        }
+    }
     for i in 0..n {
-        let Some(v) = voxels.get(i).copied() else { continue };
-        let c = v.centroid(r);
-        let Some(key) = voxel_key(c, params.seed_resolution, key_slot(v.key)) else { continue };
-        let is_seed = seeds
-            .as_slice()
-            .iter()
-            .position(|s| s.key == key && s.voxels > 0)
-            .and_then(|k| seeds.get(k))
-            .is_some_and(|s| s.best as usize == i && s.voxels >= params.seed_min_voxels);
-        if !is_seed {
+        if scratch.get(i).copied() != Some(1) {
             continue;
         }
-        if let Some(id) = supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
-            if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
-                vox.supervoxel = id as u16;
-                *st = 1;
+        let Some(v) = voxels.get(i).copied() else { continue };
+        match supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
+            Some(id) => {
+                if let Some(vox) = voxels.get_mut(i) {
+                    vox.supervoxel = id as u16;
+                }
+                stats.seeds += 1;
             }
-            stats.seeds += 1;
+            None => {
+                if let Some(st) = scratch.get_mut(i) {
+                    *st = 0;
+                }
+            }
         }
     }
 
@@ -573,14 +603,22 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
 fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params: &Params) {
     seeds.clear();
     let (r, rs) = (params.voxel_resolution, params.seed_resolution);
+    let mut last = 0;
     for (i, v) in voxels.iter().enumerate() {
         let c = v.centroid(r);
         let Some(key) = voxel_key(c, rs, key_slot(v.key)) else { continue };
         let centre = linalg::add(key_corner(key, rs), [0.5 * rs; 3]);
         let d = linalg::sub(c, centre);
         let d2 = linalg::dot(d, d);
-        // Seed cells are few (tens per frame): a linear search is cheaper than a second hash.
-        match seeds.as_mut_slice().iter_mut().find(|s| s.key == key) {
+        // Seed cells are few (tens per frame): a linear search is cheaper than a second hash, and neighbouring
+        // voxels mostly share the last cell found (keys are unique, so the first match is the only one).
+        let cells = seeds.as_mut_slice();
+        let k = match cells.get(last) {
+            Some(s) if s.key == key => Some(last),
+            _ => cells.iter().position(|s| s.key == key),
+        };
+        last = k.unwrap_or(last);
+        match k.and_then(|k| cells.get_mut(k)) {
             Some(cell) => {
                 cell.voxels = cell.voxels.saturating_add(1);
                 if d2 < cell.best_d2 {
