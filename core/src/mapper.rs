@@ -263,9 +263,7 @@ impl<'s> Mapper<'s> {
     /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks).
     pub fn stage_voxels(&mut self, checked: &CheckedFrame<'_>) {
         self.report = FrameReport { frame: self.frames + 1, ..FrameReport::default() };
-        self.slotted = checked.masks.is_some()
-            && self.params.variant.semantic_fusion()
-            && self.params.mask_split_min_share < 1.0;
+        self.slotted = checked.masks.is_some() && self.params.mask_consistent();
         let voxel_masks = self.voxel_masks(checked);
         let stats = supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
         supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.params.voxel_resolution);
@@ -337,7 +335,7 @@ impl<'s> Mapper<'s> {
         let stats = self.count_mask_hits(&checked.frame, &masks, voxel_masks.as_ref());
         self.hit_overflows = stats.hit_overflows;
         self.report.ignored_instances = stats.ignored_instances;
-        if self.params.variant.semantic_fusion() && self.params.mask_split_min_share < 1.0 {
+        if self.params.mask_consistent() {
             let cuts = annotate::cut_along_masks(
                 &checked.frame,
                 &masks,

@@ -296,6 +296,12 @@ impl Default for Params {
 pub const VOXEL_GRID_HALF_EXTENT: i32 = 511;
 
 impl Params {
+    /// Whether the mask-consistent extensions are on: a variant with semantic fusion and
+    /// `mask_split_min_share` < 1 (mask slots in the voxels, the mask cut, held-back fragments).
+    pub fn mask_consistent(&self) -> bool {
+        self.variant.semantic_fusion() && self.mask_split_min_share < 1.0
+    }
+
     /// Axial depth noise σ(z) of the sensor at depth `z`, metres.
     pub fn depth_noise(&self, z: f32) -> f32 {
         let d = z - 0.4;

@@ -109,7 +109,7 @@ pub fn reconstruction_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>) -
             return false;
         }
         let raw = frame.depth.get(v as usize * frame.width as usize + u as usize).copied().unwrap_or(0);
-        raw != 0 && x[2] > raw as f32 / frame.depth_scale + OCCLUSION_MARGIN_M as f32
+        raw != 0 && x[2] > frame.metres(raw) + OCCLUSION_MARGIN_M as f32
     };
     let unoccluded: Vec<[f32; 3]> = reconstructed.iter().filter(|x| !hidden(x)).copied().collect();
     Some(ReconstructionMetrics {
