@@ -42,6 +42,7 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod error;
+pub mod fastmath;
 pub mod annotate;
 pub mod frame;
 pub mod fuse;

@@ -539,6 +539,17 @@ impl<'s> Mapper<'s> {
                 },
                 None => *q,
             };
+            // What else the frame saw: the planes the object is on, and free space around it.
+            let mut supports = [superquadric::HalfSpace { normal: [0.0; 3], offset: 0.0 }; superquadric::MAX_SUPPORTS];
+            let n_supports = support_planes(self.planes.as_slice(), points, params.g_p, &mut supports);
+            let mut probes = [[0.0f32; 3]; superquadric::MAX_PROBES];
+            let (z_near, z_far) = points.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2])));
+            let z_far = z_far + 0.5 * (z_far - z_near).max(0.0);
+            let n_probes = superquadric::free_space_probes(&checked.frame, object.pixel_bbox, z_near, z_far, &params, &mut probes);
+            let evidence = superquadric::Evidence {
+                supports: supports.get(..n_supports).unwrap_or(&[]),
+                free: probes.get(..n_probes).unwrap_or(&[]),
+            };
             // Warm start from the track this object would join (its state in the camera frame); the full
             // multi-guess search runs when there is none or the refined fit is not acceptable.
             let support_centre = linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5);
@@ -547,10 +558,10 @@ impl<'s> Mapper<'s> {
                 .tracker
                 .nearest(track_centre, object.class, &params)
                 .and_then(|i| self.tracker.tracks.get(i))
-                .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), &params))
+                .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), &evidence, &params))
                 .filter(|f| f.accepted);
             state = SQ_REJECTED;
-            let fit = warm.or_else(|| superquadric::fit(points, &frame, &params));
+            let fit = warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params));
             if let Some(fit) = fit {
                 error = fit.error;
                 if fit.accepted {
@@ -763,3 +774,36 @@ impl<'s> Mapper<'s> {
         });
     }
 }
+
+/// The planes an object with fit points `points` (camera frame) rests on or stands against, as half-spaces
+/// with the normal towards the object, written to `out` (at most its length); returns how many. A plane
+/// qualifies when at least 95 % of the points lie on one side of it (no more than 2 cm behind) and the foot of
+/// the points' mean lies within the box of its occupied cells grown by two cells (`g_p` metres each).
+fn support_planes(planes: &[Plane], points: &[Vec3], g_p: f32, out: &mut [superquadric::HalfSpace]) -> usize {
+    if points.is_empty() {
+        return 0;
+    }
+    let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
+    let mut n = 0;
+    for plane in planes {
+        let offset = linalg::dot(plane.normal, plane.centroid);
+        let side = if linalg::dot(plane.normal, mean) >= offset { 1.0 } else { -1.0 };
+        let (normal, offset) = (linalg::scale(plane.normal, side), side * offset);
+        let above = points.iter().filter(|&&p| linalg::dot(normal, p) - offset >= -SUPPORT_SIDE_TOLERANCE).count();
+        if (above as f32) < 0.95 * points.len() as f32 {
+            continue;
+        }
+        let foot = linalg::sub(mean, linalg::scale(normal, linalg::dot(normal, mean) - offset));
+        let Some((a, b)) = plane.cell_of(foot, g_p) else { continue };
+        if !plane.within_occupied_box(a, b, 2) {
+            continue;
+        }
+        let Some(slot) = out.get_mut(n) else { break };
+        *slot = superquadric::HalfSpace { normal, offset };
+        n += 1;
+    }
+    n
+}
+
+/// How far behind a plane an object's point may lie and still count as on the object's side, metres.
+const SUPPORT_SIDE_TOLERANCE: f32 = 0.02;

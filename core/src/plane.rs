@@ -92,6 +92,26 @@ impl Plane {
         a < PLANE_GRID && self.cells.get(i / 8).is_some_and(|byte| (byte >> (i % 8)) & 1 == 1)
     }
 
+    /// Whether (a, b) (grid coordinates) lies within the bounding box of the occupied cells grown by `reach`
+    /// cells. The cells right under an object resting on the plane are hidden by it, so an object's foot is
+    /// judged against the extent of the plane, not its cells.
+    pub fn within_occupied_box(&self, a: usize, b: usize, reach: usize) -> bool {
+        let (mut lo, mut hi) = ((usize::MAX, usize::MAX), (0usize, 0usize));
+        for y in 0..PLANE_GRID {
+            for x in 0..PLANE_GRID {
+                if self.is_occupied(x, y) {
+                    lo = (lo.0.min(x), lo.1.min(y));
+                    hi = (hi.0.max(x), hi.1.max(y));
+                }
+            }
+        }
+        lo.0 != usize::MAX
+            && a + reach >= lo.0
+            && a <= hi.0 + reach
+            && b + reach >= lo.1
+            && b <= hi.1 + reach
+    }
+
     fn occupy(&mut self, a: usize, b: usize) {
         let i = b * PLANE_GRID + a;
         if let Some(byte) = self.cells.get_mut(i / 8) {

@@ -2,7 +2,7 @@
 //! (only the camera-facing half), with depth noise.
 
 use m2smap_core::linalg::{self, Mat3, Vec3};
-use m2smap_core::superquadric::{fit, Superquadric};
+use m2smap_core::superquadric::{fit, Evidence, Superquadric};
 use m2smap_core::Params;
 
 struct Rng(u64);
@@ -85,7 +85,7 @@ fn fits_known_shapes_from_their_visible_half() {
         let all = visible_points(&truth, 1500, 0.002, &mut rng);
         let frame = pca(&all);
         let sample: Vec<Vec3> = all.iter().step_by(all.len() / params.lm_samples as usize).copied().take(100).collect();
-        let f = fit(&sample, &frame, &params).expect("enough points");
+        let f = fit(&sample, &frame, &Evidence::default(), &params).expect("enough points");
         let centre_err = linalg::norm(linalg::sub(f.sq.centre, truth.centre));
         let mut a = f.sq.scales;
         let mut b = truth.scales;
@@ -123,10 +123,10 @@ fn mmq_fits_ellipsoids_only() {
         let all = visible_points(&truth, 1500, 0.002, &mut rng);
         let frame = pca(&all);
         let sample: Vec<Vec3> = all.iter().step_by(all.len() / 100).copied().take(100).collect();
-        let f = fit(&sample, &frame, &mmq).expect("enough points");
+        let f = fit(&sample, &frame, &Evidence::default(), &mmq).expect("enough points");
         assert_eq!(f.sq.eps, [1.0, 1.0], "case {case}: MMQ must keep ε1 = ε2 = 1");
         if is_box {
-            let g = fit(&sample, &frame, &full).expect("enough points");
+            let g = fit(&sample, &frame, &Evidence::default(), &full).expect("enough points");
             boxes_worse += (f.error > g.error) as u32;
         } else {
             let centre_err = linalg::norm(linalg::sub(f.sq.centre, truth.centre));
