@@ -43,7 +43,7 @@ bench:
 ## The evaluation suite: every variant on the synthetic scenes (perfect masks, ground truth) and the real cabinet
 ## frames; writes $(EVAL)/report.md (Tables I and II) and $(EVAL)/comparison.svg/.png.
 EVAL := target/eval
-EVAL_SCENES ?= tabletop shelf desk kitchen clutter
+EVAL_SCENES ?= tabletop shelf desk kitchen clutter dining
 EVAL_FRAMES ?= 20
 eval:
 	$(CARGO) build --release -p m2smap

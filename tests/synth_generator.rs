@@ -391,3 +391,99 @@ fn every_scene_shows_every_object_along_its_path() {
         }
     }
 }
+
+/// Whether `p` lies inside the solid `shape` shrunk by `margin` metres (planes are never solid here).
+fn inside(shape: &Shape, p: [f64; 3], margin: f64) -> bool {
+    match *shape {
+        Shape::Plane { .. } => false,
+        Shape::Box { centre, half, yaw } => {
+            let (c, s, d) = (f64::cos(yaw), f64::sin(yaw), sub(p, centre));
+            let l = [c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]];
+            (0..3).all(|k| l[k].abs() < half[k] - margin)
+        }
+        Shape::Cylinder { centre, axis, radius, half_height } => {
+            let d = sub(p, centre);
+            let along = dot(d, axis);
+            let radial = dot(d, d) - along * along;
+            along.abs() < half_height - margin && radial.sqrt() < radius - margin
+        }
+        Shape::Sphere { centre, radius } => dot(sub(p, centre), sub(p, centre)).sqrt() < radius - margin,
+        Shape::Superquadric { centre, scales, eps, yaw } => {
+            let (c, s, d) = (f64::cos(yaw), f64::sin(yaw), sub(p, centre));
+            sq_inside_outside([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]], scales, eps) < 1.0 && shape.distance(p) > margin
+        }
+    }
+}
+
+/// Axis-aligned bounds (lo, hi) of a solid, loose for rotated shapes; `None` for planes.
+fn bounds(shape: &Shape) -> Option<([f64; 3], [f64; 3])> {
+    let around = |c: [f64; 3], r: f64| Some(([c[0] - r, c[1] - r, c[2] - r], [c[0] + r, c[1] + r, c[2] + r]));
+    match *shape {
+        Shape::Plane { .. } => None,
+        Shape::Box { centre, half, .. } => {
+            let r = f64::hypot(half[0], half[1]);
+            Some(([centre[0] - r, centre[1] - r, centre[2] - half[2]], [centre[0] + r, centre[1] + r, centre[2] + half[2]]))
+        }
+        Shape::Cylinder { centre, radius, half_height, .. } => around(centre, f64::hypot(radius, half_height)),
+        Shape::Sphere { centre, radius } => around(centre, radius),
+        Shape::Superquadric { centre, scales, .. } => around(centre, dot(scales, scales).sqrt()),
+    }
+}
+
+#[test]
+fn dining_table_is_one_masked_instance_and_no_solids_overlap() {
+    let scene = Scene::named("dining").unwrap();
+    // The table: top and four legs, one object instance with one label.
+    let table: Vec<&Surface> = scene.surfaces.iter().filter(|s| s.label == "dining table").collect();
+    assert_eq!(table.len(), 5);
+    assert!(table[0].instance != 0 && table.iter().all(|s| s.instance == table[0].instance));
+    assert_eq!(scene.surfaces.iter().filter(|s| s.instance == table[0].instance).count(), 5);
+    let top = table.iter().find(|s| s.name == "table_top").unwrap();
+    let Shape::Box { centre, half, .. } = top.shape else { panic!("table top is a box") };
+    assert!((centre[2] + half[2] - 0.74).abs() < 1e-9 && (half[2] - 0.02).abs() < 1e-9);
+    // Every other object is its own instance: the box, the can, the two boxes of the stack and the floor crate.
+    let others: BTreeSet<u16> = scene.surfaces.iter().map(|s| s.instance).filter(|&i| i != 0 && i != table[0].instance).collect();
+    assert_eq!(others.len(), 5);
+
+    // No two solids share interior volume (touching is fine): a 2 mm grid over each pair's common bounds, each
+    // solid shrunk by 0.5 mm.
+    let solids: Vec<&Surface> = scene.surfaces.iter().filter(|s| bounds(&s.shape).is_some()).collect();
+    for (a, sa) in solids.iter().enumerate() {
+        for sb in &solids[a + 1..] {
+            let ((lo_a, hi_a), (lo_b, hi_b)) = (bounds(&sa.shape).unwrap(), bounds(&sb.shape).unwrap());
+            let (lo, hi) = ([0, 1, 2].map(|k| lo_a[k].max(lo_b[k])), [0, 1, 2].map(|k| hi_a[k].min(hi_b[k])));
+            if (0..3).any(|k| lo[k] >= hi[k]) {
+                continue;
+            }
+            let n = [0, 1, 2].map(|k| ((hi[k] - lo[k]) / 0.002).ceil() as usize + 1);
+            for i in 0..n[0] * n[1] * n[2] {
+                let (x, y, z) = (i % n[0], (i / n[0]) % n[1], i / (n[0] * n[1]));
+                let p = [lo[0] + 0.002 * x as f64, lo[1] + 0.002 * y as f64, lo[2] + 0.002 * z as f64];
+                assert!(!(inside(&sa.shape, p, 5e-4) && inside(&sb.shape, p, 5e-4)), "{} and {} overlap at {p:?}", sa.name, sb.name);
+            }
+        }
+    }
+    // Nothing sinks into the floor or the wall.
+    for s in &solids {
+        let (lo, hi) = bounds(&s.shape).unwrap();
+        assert!(lo[2] >= -1e-9 && hi[1] <= 1.7, "{}", s.name);
+    }
+
+    // gt/objects.json lists every surface with its instance; the masks carry the table as one instance.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("dining");
+    scene.write_tum(&out, 2, 1, false).unwrap();
+    let objects: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.join("gt/objects.json")).unwrap()).unwrap();
+    let listed = objects["surfaces"].as_array().unwrap();
+    assert_eq!(objects["scene"], "dining");
+    assert_eq!(listed.len(), scene.surfaces.len());
+    for (json, s) in listed.iter().zip(&scene.surfaces) {
+        assert_eq!(json["name"], s.name.as_str());
+        assert_eq!(json["instance"].as_u64(), Some(s.instance as u64), "{}", s.name);
+    }
+    for stem in stems(&out) {
+        let tables: Vec<serde_json::Value> = instances(&out, &stem).into_iter().filter(|i| i["label"] == "dining table").collect();
+        assert_eq!(tables.len(), 1, "{stem}: the table is one instance");
+        assert_eq!(tables[0]["id"].as_u64(), Some(table[0].instance as u64));
+    }
+}

@@ -2,105 +2,269 @@
 //!
 //! A plain harness rather than divan/criterion: the stages share the mapper's borrowed pools, so each stage is
 //! timed in place inside one pass over a frame, and every frame is processed `REPS` times.
+//!
+//! Rows with segmenter masks: the core's geometric segmenter (`Mapper::process_segmented`, as `m2smap run
+//! --segmenter geometric`) runs between stages 3 and 4, where no stage hook reaches it. Its masks depend only on
+//! the frame, so they are made beforehand by `process_segmented` in the same schedule, and the timed pass runs
+//! the stages as `process_segmented` does (voxels without mask slots, then annotation with the segmenter's
+//! masks), checked to map the same; the segmenter's own time (process_segmented's minus the replay's, on the
+//! `mmp` pair whose stages have no superquadric search to blur it) is printed below the table. The segmenter and
+//! ycbv rows, like `m2smap run`, map with the dataset's poses (superquadric tracks in the world frame); the
+//! cabinet and no-mask redkitchen rows keep the camera frame, as before.
+//!
+//! Cold fits: a pass per dataset forgets every superquadric track right before the superquadric stage, so every
+//! object is fitted from its initial guesses; the stage time divided by the objects fitted (accepted + rejected)
+//! is the cost of one cold fit.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
-use m2smap::dataset::{Camera, Dataset, LoadedFrame};
-use m2smap::masks::{read_frame_masks, FrameMasks, LabelTable};
-use m2smap::run::median;
+use m2smap::dataset::{Camera, Dataset, LoadedFrame, Pose};
+use m2smap::masks::{read_frame_masks, FrameMasks, LabelTable, Pixels};
+use m2smap::run::{median, SEGMENTER_INSTANCES};
 use m2smap::synth::Scene;
-use m2smap_core::{HostStorage, Mapper, McuStorage, Params, Profile};
+use m2smap_core::{FrameReport, HostStorage, Instance, Mapper, McuStorage, Params, Profile, Variant};
 
 const REPS: usize = 3;
 const STAGES: [&str; 7] =
     ["points+voxels", "supervoxels", "gaussians", "annotate", "fuse+planes+objects", "superquadrics", "total"];
 
-type Frames = Vec<(LoadedFrame, Option<FrameMasks>)>;
+/// One input frame: the decoded frame, its masks and (for the rows that track in the world frame) its pose.
+struct Input {
+    frame: LoadedFrame,
+    masks: Option<FrameMasks>,
+    pose: Option<Pose>,
+}
 
-fn bench<P: Profile>(name: &str, storage: &mut P, camera: &Camera, frames: &Frames, cold: bool) {
-    let mut times: [Vec<f64>; 7] = Default::default();
-    let mut gaussians = Vec::new();
-    let mut mapper = Mapper::new(&mut *storage, Params::default()).expect("default parameters");
-    for (frame, masks) in frames {
+type Frames = Vec<Input>;
+
+/// What one pass over the frames measured, one entry per (frame, repetition).
+#[derive(Default)]
+struct Timing {
+    /// Milliseconds per stage, in [`STAGES`] order.
+    times: [Vec<f64>; 7],
+    /// Gaussians per frame.
+    gaussians: Vec<f64>,
+    /// The core's reports.
+    reports: Vec<FrameReport>,
+}
+
+impl Timing {
+    /// Milliseconds of the superquadric stage per object fitted (accepted + rejected), over the entries that
+    /// fitted at least one object, and the objects fitted per entry.
+    fn per_fit(&self) -> (Vec<f64>, Vec<f64>) {
+        let fits: Vec<f64> = self.reports.iter().map(|r| (r.sqs + r.sq_rejected) as f64).collect();
+        let per = self.times[5].iter().zip(&fits).filter(|(_, &n)| n > 0.0).map(|(ms, n)| ms / n).collect();
+        (per, fits)
+    }
+}
+
+/// Runs every frame `REPS` times through the stages, timing each. With `cold` every superquadric track is
+/// forgotten right before the superquadric stage (every object is fitted from its initial guesses). With
+/// `segmented` the masks join only after stage 3, as in `Mapper::process_segmented` (voxels without mask slots,
+/// the Gaussians the segmenter's masks were made from).
+fn bench<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &Frames, cold: bool, segmented: bool) -> Timing {
+    let mut t = Timing::default();
+    let mut mapper = Mapper::new(&mut *storage, params).expect("valid parameters");
+    for input in frames {
+        let view = input.frame.view_posed(camera, input.pose.as_ref());
+        let masks = input.masks.as_ref().map(|m| m.view());
         for _ in 0..REPS {
+            let t0 = Instant::now();
+            let early = mapper.check(view, masks.filter(|_| !segmented)).expect("valid frame");
+            mapper.stage_voxels(&early);
+            let t1 = Instant::now();
+            mapper.stage_supervoxels();
+            let t2 = Instant::now();
+            mapper.stage_gaussians(&early);
+            let t3 = Instant::now();
+            let checked = if segmented { mapper.check(view, masks).expect("valid masks") } else { early };
+            mapper.stage_annotate(&checked);
+            let t4 = Instant::now();
+            mapper.stage_separate(&checked);
             if cold {
                 // No track to warm-start from: every superquadric is fitted from its 18 initial guesses.
                 mapper.reset_tracks();
             }
-            let t0 = Instant::now();
-            let checked = mapper.check(frame.view(camera), masks.as_ref().map(|m| m.view())).expect("valid frame");
-            mapper.stage_voxels(&checked);
-            let t1 = Instant::now();
-            mapper.stage_supervoxels();
-            let t2 = Instant::now();
-            mapper.stage_gaussians(&checked);
-            let t3 = Instant::now();
-            mapper.stage_annotate(&checked);
-            let t4 = Instant::now();
-            mapper.stage_separate(&checked);
             let t5 = Instant::now();
             mapper.stage_superquadrics(&checked);
             let report = *mapper.finish_frame();
             let t6 = Instant::now();
             let spans = [(t0, t1), (t1, t2), (t2, t3), (t3, t4), (t4, t5), (t5, t6), (t0, t6)];
             for (k, (a, b)) in spans.into_iter().enumerate() {
-                times[k].push((b - a).as_secs_f64() * 1e3);
+                t.times[k].push((b - a).as_secs_f64() * 1e3);
             }
-            gaussians.push(report.gaussians as f64);
+            t.gaussians.push(report.gaussians as f64);
+            t.reports.push(report);
         }
     }
-    let cells: Vec<String> = times.iter().map(|t| format!("{:.3}", median(t))).collect();
-    println!(
-        "| {name} | {} | {} | {:.1} | {:.0} |",
-        frames.len(),
-        cells.join(" | "),
-        median(&gaussians),
-        1e3 / median(&times[6])
-    );
+    t
 }
 
+/// The frames with the geometric segmenter's masks (`Mapper::process_segmented`, as `m2smap run --segmenter
+/// geometric`), each frame run `REPS` times in the schedule of [`bench`]: the masked frames, and per (frame,
+/// repetition) the milliseconds of `process_segmented` (segmenter included) and its report.
+fn segmenter_frames<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &Frames) -> (Frames, Vec<f64>, Vec<FrameReport>) {
+    let mut labels = LabelTable::default();
+    let class = labels.class_of("object");
+    let mut instances = vec![Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
+    let mut mapper = Mapper::new(&mut *storage, params).expect("valid parameters");
+    let (mut out, mut ms, mut reports) = (Vec::new(), Vec::new(), Vec::new());
+    for input in frames {
+        let view = input.frame.view_posed(camera, input.pose.as_ref());
+        let mut ids = vec![0u16; view.pixels()];
+        let mut k = 0;
+        for _ in 0..REPS {
+            let t0 = Instant::now();
+            let (report, n) = mapper.process_segmented(view, &mut ids, &mut instances, class).expect("valid frame");
+            ms.push(t0.elapsed().as_secs_f64() * 1e3);
+            reports.push(report);
+            k = n;
+        }
+        let masks = FrameMasks { width: input.frame.width, height: input.frame.height, instances: instances[..k].to_vec(), pixels: Pixels::Ids(ids) };
+        out.push(Input { frame: input.frame.clone(), masks: Some(masks), pose: input.pose });
+    }
+    (out, ms, reports)
+}
+
+/// [`bench`] with the geometric segmenter's masks, which it runs between stages 3 and 4 where no stage hook
+/// reaches: the masks are made beforehand ([`segmenter_frames`]; they depend on the frame only) and the stages
+/// replayed as `process_segmented` runs them, checked to map the same. Returns the stage timing, the masked
+/// frames and the segmenter's own milliseconds per (frame, repetition) (process_segmented's total minus the
+/// replay's).
+fn bench_segmented<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &Frames) -> (Timing, Frames, Vec<f64>) {
+    let (masked, whole, reports) = segmenter_frames(&mut *storage, params, camera, frames);
+    let t = bench(&mut *storage, params, camera, &masked, false, true);
+    let same = |a: &FrameReport, b: &FrameReport| {
+        (a.points, a.gaussians, a.annotated, a.clusters, a.planes, a.objects, a.sqs, a.sq_rejected, a.tracks)
+            == (b.points, b.gaussians, b.annotated, b.clusters, b.planes, b.objects, b.sqs, b.sq_rejected, b.tracks)
+    };
+    let differ = t.reports.iter().zip(&reports).filter(|(a, b)| !same(a, b)).count();
+    assert_eq!(differ, 0, "the staged replay maps {differ} frames otherwise than process_segmented");
+    let seg = whole.iter().zip(&t.times[6]).map(|(w, s)| w - s).collect();
+    (t, masked, seg)
+}
+
+/// Prints one table row.
+fn row(name: &str, frames: usize, t: &Timing) {
+    let cells: Vec<String> = t.times.iter().map(|v| format!("{:.3}", median(v))).collect();
+    println!("| {name} | {frames} | {} | {:.1} | {:.0} |", cells.join(" | "), median(&t.gaussians), 1e3 / median(&t.times[6]));
+}
+
+/// The cold-fit line of a dataset (host profile, `full`), from a [`bench`] pass with `cold`.
+fn cold_line(name: &str, frames: usize, t: &Timing) -> String {
+    let (per, fits) = t.per_fit();
+    let per_fit = if per.is_empty() { "–".to_owned() } else { format!("{:.3}", median(&per)) };
+    let total: f64 = fits.iter().sum();
+    format!("| {name} | {frames} | {total:.0} | {:.1} | {:.3} | {per_fit} |", median(&fits), median(&t.times[5]))
+}
+
+/// Loads up to `limit` frames of `../shared/data/name` (evenly spaced) with their masks and poses; `None` when
+/// the folder is absent.
 fn load(name: &str, limit: usize) -> Option<(Camera, Frames)> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(name);
-    let d = Dataset::open(&root, None).ok()?;
+    if !root.is_dir() {
+        return None;
+    }
+    let d = Dataset::open(&root, None).unwrap_or_else(|e| panic!("{e:#}"));
     let step = (d.frames.len() / limit).max(1);
     let mut labels = LabelTable::default();
     let mut frames = Vec::new();
     for i in (0..d.frames.len()).step_by(step).take(limit) {
-        let f = d.load(i).ok()?;
-        let masks = read_frame_masks(&root.join("masks"), &d.frames[i].stem, f.width, f.height, &mut labels).ok()?;
-        frames.push((f, masks));
+        let frame = d.load(i).unwrap_or_else(|e| panic!("{e:#}"));
+        let masks = read_frame_masks(&root.join("masks"), &d.frames[i].stem, frame.width, frame.height, &mut labels)
+            .unwrap_or_else(|e| panic!("{e:#}"));
+        frames.push(Input { frame, masks, pose: d.frames[i].pose });
     }
     Some((d.camera, frames))
 }
 
+/// The frames without their poses (tracks in the camera frame).
+fn unposed(frames: &Frames) -> Frames {
+    frames.iter().map(|f| Input { frame: f.frame.clone(), masks: f.masks.clone(), pose: None }).collect()
+}
+
 fn main() {
+    let full = Params::default();
+    let mmp = Params { variant: Variant::Mmp, ..Params::default() };
     println!("median ms per stage (single thread, release, {REPS} repetitions of each frame)\n");
     println!("| data (profile) | frames | {} | Gaussians | Hz |", STAGES.join(" | "));
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut host = bytemuck::zeroed_box::<HostStorage>();
     let mut mcu = bytemuck::zeroed_box::<McuStorage>();
-    for (name, limit) in [("tum_fr3_cabinet", 58), ("7scenes_redkitchen", 60)] {
-        match load(name, limit) {
-            Some((camera, frames)) => {
-                bench(&format!("{name} (host)"), &mut *host, &camera, &frames, false);
-                bench(&format!("{name} (mcu)"), &mut *mcu, &camera, &frames, false);
-                if name == "tum_fr3_cabinet" {
-                    bench(&format!("{name} (host, cold SQ fits)"), &mut *host, &camera, &frames, true);
-                }
-            }
-            None => eprintln!("skipped: ../shared/data/{name} not found"),
+    let (mut notes, mut cold, mut skipped) = (Vec::<String>::new(), Vec::<String>::new(), Vec::<String>::new());
+
+    match load("tum_fr3_cabinet", 58) {
+        Some((camera, posed)) => {
+            let (name, frames) = ("tum_fr3_cabinet", unposed(&posed));
+            row(&format!("{name} (host)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false, false));
+            row(&format!("{name} (mcu)"), frames.len(), &bench(&mut *mcu, full, &camera, &frames, false, false));
+            let t = bench(&mut *host, full, &camera, &frames, true, false);
+            row(&format!("{name} (host, cold SQ fits)"), frames.len(), &t);
+            cold.push(cold_line(&format!("{name} (file masks)"), frames.len(), &t));
         }
+        None => skipped.push("tum_fr3_cabinet".into()),
     }
+
+    match load("7scenes_redkitchen", 60) {
+        Some((camera, posed)) => {
+            let (name, frames) = ("7scenes_redkitchen", unposed(&posed));
+            row(&format!("{name} (host, no masks)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false, false));
+            row(&format!("{name} (mcu, no masks)"), frames.len(), &bench(&mut *mcu, full, &camera, &frames, false, false));
+            // The segmenter's masks, as `m2smap run --segmenter geometric` (which maps with the dataset's poses).
+            let (t, masked, _) = bench_segmented(&mut *host, full, &camera, &posed);
+            row(&format!("{name} (host, segmenter masks)"), posed.len(), &t);
+            let (t, _, seg) = bench_segmented(&mut *host, mmp, &camera, &posed);
+            row(&format!("{name} (host, segmenter masks, mmp)"), posed.len(), &t);
+            // The segmenter's own time from the mmp pair (no superquadric search, so little timing noise).
+            let instances = median(&masked.iter().map(|f| f.masks.as_ref().map_or(0.0, |m| m.instances.len() as f64)).collect::<Vec<_>>());
+            notes.push(format!(
+                "{name}: the geometric segmenter itself takes {:.3} ms per frame more, in neither row's stage columns (process_segmented minus the staged replay, variant mmp; median {instances:.0} instances per frame)",
+                median(&seg)
+            ));
+            let t = bench(&mut *host, full, &camera, &masked, true, true);
+            cold.push(cold_line(&format!("{name} (segmenter masks)"), masked.len(), &t));
+        }
+        None => skipped.push("7scenes_redkitchen".into()),
+    }
+
+    match load("ycbv_0000", 10) {
+        Some((camera, frames)) => {
+            let name = "ycbv_0000";
+            row(&format!("{name} (host, gt masks)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false, false));
+            row(&format!("{name} (host, gt masks, mmp)"), frames.len(), &bench(&mut *host, mmp, &camera, &frames, false, false));
+            let t = bench(&mut *host, full, &camera, &frames, true, false);
+            cold.push(cold_line(&format!("{name} (gt masks)"), frames.len(), &t));
+        }
+        None => skipped.push("ycbv_0000".into()),
+    }
+
     for scene in m2smap::synth::SCENES {
         let s = Scene::named(scene).expect("built-in scene");
         let frames: Frames = (0..10)
             .map(|k| {
                 let f = s.render(k, Some(1));
                 let masks = s.perfect_masks(&f, &mut LabelTable::default());
-                (f.frame, Some(masks))
+                Input { frame: f.frame, masks: Some(masks), pose: None }
             })
             .collect();
-        bench(&format!("synthetic {scene} (host)"), &mut *host, &s.camera, &frames, false);
+        row(&format!("synthetic {scene} (host)"), frames.len(), &bench(&mut *host, full, &s.camera, &frames, false, false));
+        let t = bench(&mut *host, full, &s.camera, &frames, true, false);
+        cold.push(cold_line(&format!("synthetic {scene} (perfect masks)"), frames.len(), &t));
+    }
+
+    println!();
+    for n in &notes {
+        println!("{n}");
+    }
+    println!("\ncold superquadric fits (host, full; every track forgotten right before the superquadric stage; median ms of the stage per object fitted, accepted or rejected)\n");
+    println!("| data (masks) | frames | fits | objects fitted per frame | superquadrics ms per frame | ms per cold fit |");
+    println!("|---|---:|---:|---:|---:|---:|");
+    for c in &cold {
+        println!("{c}");
+    }
+    for name in &skipped {
+        println!("\nskipped: ../shared/data/{name} not found, its rows are left out");
+        eprintln!("skipped: ../shared/data/{name} not found");
     }
 }

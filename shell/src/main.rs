@@ -97,7 +97,9 @@ enum Command {
     /// masks/ and the exact gt/ with objects.json).
     Synth {
         /// Scene name: tabletop, shelf, desk, kitchen (table with a mug, ball, cushion, cereal box, bottle),
-        /// clutter (objects touching each other, the floor and the wall: built to provoke adhesion).
+        /// clutter (objects touching each other, the floor and the wall: built to provoke adhesion), dining (a
+        /// table masked as one non-convex instance, top and legs, with a box, a can and a stack of two boxes on
+        /// it and a crate on the floor beside it).
         #[arg(long)]
         scene: String,
         /// Number of frames.

@@ -331,7 +331,7 @@ pub struct Scene {
 }
 
 /// The names of the built-in scenes.
-pub const SCENES: [&str; 5] = ["tabletop", "shelf", "desk", "kitchen", "clutter"];
+pub const SCENES: [&str; 6] = ["tabletop", "shelf", "desk", "kitchen", "clutter", "dining"];
 
 /// Depth step between 4-neighbours above which the sensor may lose both pixels (a depth edge), metres.
 pub const EDGE_STEP: f64 = 0.04;
@@ -365,10 +365,16 @@ fn object(name: &str, instance: u16, label: &str, shape: Shape, colour: [u8; 3])
 
 /// A table: a 4 cm top (structure, instance 0) with its upper face at `top` metres on four legs, centred at (x, y).
 fn table(x: f64, y: f64, half: [f64; 2], top: f64, colour: [u8; 3]) -> Vec<Surface> {
-    let mut v = vec![cuboid("table_top", 0, "", [x, y, top - 0.02], [half[0], half[1], 0.02], 0.0, colour)];
+    table_instance(x, y, half, top, 0, "", colour)
+}
+
+/// [`table`] with all five parts (top and legs) carrying `instance` and `label`: one non-convex instance when
+/// `instance` ≥ 1. The legs (5 cm square, inset 2.5 cm) reach from the floor to the underside of the top.
+fn table_instance(x: f64, y: f64, half: [f64; 2], top: f64, instance: u16, label: &str, colour: [u8; 3]) -> Vec<Surface> {
+    let mut v = vec![cuboid("table_top", instance, label, [x, y, top - 0.02], [half[0], half[1], 0.02], 0.0, colour)];
     for (k, (sx, sy)) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)].into_iter().enumerate() {
         let c = [x + sx * (half[0] - 0.05), y + sy * (half[1] - 0.05), 0.5 * (top - 0.04)];
-        v.push(cuboid(&format!("table_leg{k}"), 0, "", c, [0.025, 0.025, 0.5 * (top - 0.04)], 0.0, colour));
+        v.push(cuboid(&format!("table_leg{k}"), instance, label, c, [0.025, 0.025, 0.5 * (top - 0.04)], 0.0, colour));
     }
     v
 }
@@ -453,6 +459,30 @@ impl Scene {
                     cuboid("book", 5, "book", [-0.15, 1.1, 2.0 * crate_h[2] + 0.04], [0.12, 0.09, 0.04], 0.4, [40, 70, 160]),
                 ];
                 (v, [-0.05, -0.25, 1.2], [-0.05, 0.95, 0.2])
+            }
+            // Built to provoke superquadrics that grow through supports and span non-convex objects: a masked
+            // dining table (top and four legs are ONE instance, which no single superquadric describes) carrying a
+            // yawed box, an upright can and a stack of two boxes (each its own instance, the small one resting on
+            // the wide one), and a crate on the floor beside the table. The camera looks down at ~48° with the
+            // whole table (legs included) and the crate in view along the path.
+            "dining" => {
+                let top = 0.74;
+                let mut v = vec![
+                    plane("floor", [0.0, 0.0, 1.0], 0.0, [145, 140, 130]),
+                    plane("wall", [0.0, -1.0, 0.0], -1.7, [210, 205, 215]),
+                ];
+                v.extend(table_instance(0.0, 0.8, [0.55, 0.4], top, 1, "dining table", [160, 115, 75]));
+                let (stack_c, stack_h) = ([0.27, 0.82], [0.12, 0.09, 0.04]);
+                v.extend([
+                    cuboid("box", 2, "box", [-0.3, 0.88, top + 0.11], [0.08, 0.05, 0.11], 0.5, [200, 60, 50]),
+                    object("can", 3, "can", Shape::Cylinder { centre: [-0.08, 0.6, top + 0.06], axis: [0.0, 0.0, 1.0], radius: 0.035, half_height: 0.06 }, [200, 200, 210]),
+                    // The wide box of the stack, and a smaller one resting on it (touching at z = top + 0.08).
+                    cuboid("stack_low", 4, "book", [stack_c[0], stack_c[1], top + stack_h[2]], stack_h, -0.15, [50, 90, 190]),
+                    cuboid("stack_high", 5, "box", [stack_c[0] + 0.01, stack_c[1] - 0.01, top + 2.0 * stack_h[2] + 0.04], [0.06, 0.05, 0.04], 0.35, [230, 190, 40]),
+                    // On the floor, right of the table (clear of its legs and top).
+                    cuboid("crate", 6, "box", [0.82, 0.72, 0.13], [0.12, 0.1, 0.13], 0.3, [70, 150, 80]),
+                ]);
+                (v, [0.2, -0.45, 1.85], [0.05, 0.8, 0.45])
             }
             other => bail!("unknown scene {other:?} (known: {})", SCENES.join(", ")),
         };
