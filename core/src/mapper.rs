@@ -95,6 +95,10 @@ pub struct FrameReport {
     pub gmms: u32,
     /// Objects whose fit was rejected (they keep their Gaussians).
     pub sq_rejected: u32,
+    /// Flat patches kept as support candidates of the superquadrics (at most `plane::MAX_FLAT_PATCHES`).
+    pub flat_patches: u32,
+    /// Flat patches not kept because the table was full (the largest are kept).
+    pub flat_patches_dropped: u32,
     /// Live superquadric tracks after this frame.
     pub tracks: u32,
     /// Tracks started this frame.
@@ -143,6 +147,9 @@ pub struct Mapper<'s> {
     tracker: Tracker<'s>,
     sq_points: &'s mut [Vec3],
     sq_points_peak: usize,
+    /// Flat clusters of this frame that are not bounded planes: support candidates of the superquadrics.
+    patches: [plane::FlatPatch; plane::MAX_FLAT_PATCHES],
+    patches_len: usize,
     report: FrameReport,
     frames: u32,
     /// Whether the current frame's voxels are split in mask slots.
@@ -171,6 +178,8 @@ impl<'s> Mapper<'s> {
             tracker: Tracker::new(Bounded::new(parts.tracks)),
             sq_points: parts.sq_points,
             sq_points_peak: 0,
+            patches: [bytemuck::Zeroable::zeroed(); plane::MAX_FLAT_PATCHES],
+            patches_len: 0,
             report: FrameReport::default(),
             frames: 0,
             slotted: false,
@@ -381,6 +390,9 @@ impl<'s> Mapper<'s> {
         let masks = checked.masks;
         let hits: &[MaskHit] = self.mask_hits;
         let planes = &mut self.planes;
+        let (patches, patches_len) = (&mut self.patches, &mut self.patches_len);
+        *patches_len = 0;
+        let mut patches_dropped = 0u32;
         let mut annotated = 0u32;
         fuse::for_each_cluster(self.gaussians.as_mut_slice(), self.scratch, |gaussians, id, members| {
             if let (true, Some(masks)) = (post_merge, masks.as_ref()) {
@@ -418,6 +430,11 @@ impl<'s> Mapper<'s> {
             } else {
                 None
             };
+            if plane.is_none() {
+                if let Some(p) = plane::FlatPatch::from_cluster(m.mean(), &e, points, instance, &params) {
+                    patches_dropped += plane::keep_largest(patches, patches_len, p) as u32;
+                }
+            }
             // MMQ: a cluster that is not a plane and is large enough for a quadric is an object by geometry.
             let geometric_object =
                 params.variant.geometric_objects() && plane.is_none() && points >= params.sq_min_points;
@@ -434,6 +451,8 @@ impl<'s> Mapper<'s> {
         if post_merge {
             self.report.annotated = annotated;
         }
+        self.report.flat_patches = self.patches_len as u32;
+        self.report.flat_patches_dropped = patches_dropped;
         plane::fill_cells(
             &checked.frame,
             self.voxel_masks(checked).as_ref(),
@@ -541,7 +560,10 @@ impl<'s> Mapper<'s> {
             };
             // What else the frame saw: the planes the object is on, and free space around it.
             let mut supports = [superquadric::HalfSpace { normal: [0.0; 3], offset: 0.0 }; superquadric::MAX_SUPPORTS];
-            let n_supports = support_planes(self.planes.as_slice(), points, params.g_p, &mut supports);
+            let patches = self.patches.get(..self.patches_len).unwrap_or(&[]);
+            // Objects by geometry (MMQ) are fused clusters themselves: a patch may be the object's own face.
+            let patches = if params.variant.geometric_objects() { &[] } else { patches };
+            let n_supports = support_planes(self.planes.as_slice(), patches, object.instance, points, params.g_p, &mut supports);
             let mut probes = [[0.0f32; 3]; superquadric::MAX_PROBES];
             let (z_near, z_far) = points.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2])));
             let z_far = z_far + 0.5 * (z_far - z_near).max(0.0);
@@ -567,7 +589,10 @@ impl<'s> Mapper<'s> {
                 if fit.accepted {
                     state = SQ_ACCEPTED;
                     let updated = self.tracker.update(&to_track(&fit.sq), object.class, &params, params.variant.aligns());
-                    sq = to_camera(&updated.sq);
+                    // The map shows the smoothed state when this frame's points and evidence allow it, else
+                    // this frame's fit: a track's history never puts a shape where the camera now sees nothing.
+                    let smoothed = to_camera(&updated.sq);
+                    sq = if superquadric::is_consistent(&smoothed, points, &evidence, &params) { smoothed } else { fit.sq };
                     self.report.max_track_step_m = self.report.max_track_step_m.max(updated.step_m);
                     track = updated.index.and_then(|i| self.tracker.tracks.get(i)).map_or(0, |t| t.id);
                     if updated.new {
@@ -775,35 +800,46 @@ impl<'s> Mapper<'s> {
     }
 }
 
-/// The planes an object with fit points `points` (camera frame) rests on or stands against, as half-spaces
-/// with the normal towards the object, written to `out` (at most its length); returns how many. A plane
-/// qualifies when at least 95 % of the points lie on one side of it (no more than 2 cm behind) and the foot of
-/// the points' mean lies within the box of its occupied cells grown by two cells (`g_p` metres each).
-fn support_planes(planes: &[Plane], points: &[Vec3], g_p: f32, out: &mut [superquadric::HalfSpace]) -> usize {
+/// The planes and flat patches an object (instance `instance`) with fit points `points` (camera frame) rests
+/// on or stands against, as half-spaces with the normal towards the object, written to `out` (at most its
+/// length); returns how many. A plane or a patch of another instance qualifies when at least 95 % of the points
+/// lie on one side of it (no more than 2 cm behind) and the foot of the points' mean lies within its extent: a
+/// bounded plane's occupied-cell box grown by two cells (`g_p` metres each), a patch's 2σ box grown by 5 cm.
+/// Convex objects do not interpenetrate, so a face seen of one object bounds its neighbours.
+fn support_planes(planes: &[Plane], patches: &[plane::FlatPatch], instance: u16, points: &[Vec3], g_p: f32, out: &mut [superquadric::HalfSpace]) -> usize {
     if points.is_empty() {
         return 0;
     }
     let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
-    let mut n = 0;
-    for plane in planes {
-        let offset = linalg::dot(plane.normal, plane.centroid);
-        let side = if linalg::dot(plane.normal, mean) >= offset { 1.0 } else { -1.0 };
-        let (normal, offset) = (linalg::scale(plane.normal, side), side * offset);
+    // The half-space of the plane through `c` with normal `n`, turned towards the object, when the object lies
+    // on one side of it; with the foot of the object's mean on it.
+    let side_of = |n: Vec3, c: Vec3| {
+        let offset = linalg::dot(n, c);
+        let side = if linalg::dot(n, mean) >= offset { 1.0 } else { -1.0 };
+        let (normal, offset) = (linalg::scale(n, side), side * offset);
         let above = points.iter().filter(|&&p| linalg::dot(normal, p) - offset >= -SUPPORT_SIDE_TOLERANCE).count();
-        if (above as f32) < 0.95 * points.len() as f32 {
-            continue;
-        }
         let foot = linalg::sub(mean, linalg::scale(normal, linalg::dot(normal, mean) - offset));
-        let Some((a, b)) = plane.cell_of(foot, g_p) else { continue };
-        if !plane.within_occupied_box(a, b, 2) {
-            continue;
-        }
-        let Some(slot) = out.get_mut(n) else { break };
-        *slot = superquadric::HalfSpace { normal, offset };
+        ((above as f32) >= 0.95 * points.len() as f32).then_some((superquadric::HalfSpace { normal, offset }, foot))
+    };
+    let from_planes = planes.iter().filter_map(|plane| {
+        let (h, foot) = side_of(plane.normal, plane.centroid)?;
+        let (a, b) = plane.cell_of(foot, g_p)?;
+        plane.within_occupied_box(a, b, 2).then_some(h)
+    });
+    let from_patches = patches.iter().filter(|p| p.instance != instance).filter_map(|patch| {
+        let (h, foot) = side_of(patch.normal, patch.centroid)?;
+        patch.covers(foot, PATCH_MARGIN).then_some(h)
+    });
+    let mut n = 0;
+    for (slot, h) in out.iter_mut().zip(from_planes.chain(from_patches)) {
+        *slot = h;
         n += 1;
     }
     n
 }
+
+/// How far beyond a flat patch's 2σ extent the foot of an object may lie for the patch to bound it, metres.
+const PATCH_MARGIN: f32 = 0.05;
 
 /// How far behind a plane an object's point may lie and still count as on the object's side, metres.
 const SUPPORT_SIDE_TOLERANCE: f32 = 0.02;

@@ -52,6 +52,76 @@ pub struct Plane {
     pub cells: [u8; PLANE_GRID_BYTES],
 }
 
+/// Most flat patches a frame keeps as support candidates ([`FlatPatch`]).
+pub const MAX_FLAT_PATCHES: usize = 16;
+/// Least support of a flat patch, points.
+pub const PATCH_MIN_POINTS: u32 = 100;
+/// Least second principal scale σ1 of a flat patch, metres (a strip is no support).
+pub const PATCH_MIN_SIGMA: f32 = 0.03;
+
+/// A flat fused cluster that is not a bounded plane (typically the top or a face of an object, or a small
+/// unlabelled board): a support candidate for the superquadrics of other objects. Camera frame, metres.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct FlatPatch {
+    /// Centroid, metres.
+    pub centroid: Vec3,
+    /// First tangent direction.
+    pub e1: Vec3,
+    /// Second tangent direction.
+    pub e2: Vec3,
+    /// Unit normal.
+    pub normal: Vec3,
+    /// Half extents along e1 and e2 (2σ0, 2σ1), metres.
+    pub half: [f32; 2],
+    /// Support points.
+    pub points: u32,
+    /// Instance id of its Gaussians (0 = none).
+    pub instance: u16,
+}
+
+impl FlatPatch {
+    /// A patch from a cluster's shape when it is flat (σ2 ≤ τ_t or λ2/λ0 ≤ τ_λ), has at least
+    /// [`PATCH_MIN_POINTS`] points and σ1 ≥ [`PATCH_MIN_SIGMA`].
+    pub fn from_cluster(centroid: Vec3, e: &Eigen3, points: u32, instance: u16, params: &Params) -> Option<FlatPatch> {
+        let s = e.sigmas();
+        let thin = s[2] <= params.tau_t || e.values[2] <= params.tau_lambda * e.values[0];
+        (thin && points >= PATCH_MIN_POINTS && s[1] >= PATCH_MIN_SIGMA).then(|| FlatPatch {
+            centroid,
+            e1: e.vectors[0],
+            e2: e.vectors[1],
+            normal: linalg::normalize_or(linalg::cross(e.vectors[0], e.vectors[1]), e.vectors[2]),
+            half: [2.0 * s[0], 2.0 * s[1]],
+            points,
+            instance,
+        })
+    }
+
+    /// Whether the foot of `p` on the patch's plane lies within its extent grown by `margin` metres.
+    pub fn covers(&self, p: Vec3, margin: f32) -> bool {
+        let d = linalg::sub(p, self.centroid);
+        libm::fabsf(linalg::dot(d, self.e1)) <= self.half[0] + margin
+            && libm::fabsf(linalg::dot(d, self.e2)) <= self.half[1] + margin
+    }
+}
+
+/// Keeps the [`MAX_FLAT_PATCHES`] largest patches in `patches[..*n]`: `patch` is added while there is room,
+/// else it replaces the smallest kept patch when it is larger. Returns whether a patch was dropped.
+pub fn keep_largest(patches: &mut [FlatPatch], n: &mut usize, patch: FlatPatch) -> bool {
+    if let Some(slot) = patches.get_mut(*n) {
+        *slot = patch;
+        *n += 1;
+        return false;
+    }
+    let kept = patches.get_mut(..*n).unwrap_or(&mut []);
+    if let Some(smallest) = kept.iter_mut().min_by_key(|p| p.points) {
+        if smallest.points < patch.points {
+            *smallest = patch;
+        }
+    }
+    true
+}
+
 /// Equation 8: whether a fused cluster with `points` points, eigen-decomposition `e` and instance `instance`
 /// (0 = none) is a flat plane.
 pub fn is_flat_plane(points: u32, e: &Eigen3, instance: u16, params: &Params) -> bool {

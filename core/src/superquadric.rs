@@ -1130,6 +1130,25 @@ const SUPPORT_MARGIN: f32 = 0.03;
 /// the centre inside that box grown by half its diagonal, the shape within its support seen side-on
 /// ([`stays_within_support`]), and the evidence respected ([`respects_evidence`]).
 fn is_acceptable(fit: &Fit, prob: &Problem<'_>, params: &Params) -> bool {
+    accepts(&fit.sq, fit.error, prob, params)
+}
+
+/// Whether `sq` (any superquadric, e.g. a track's smoothed state) passes the acceptance test of a fit to
+/// `points` under `evidence`: the map shows a smoothed state only when this frame's evidence allows it.
+pub fn is_consistent(sq: &Superquadric, points: &[Vec3], evidence: &Evidence<'_>, params: &Params) -> bool {
+    let prob = Problem {
+        points,
+        extent_points: points,
+        evidence: *evidence,
+        lateral: lateral_half_extent(points),
+        prior: params.sq_scale_prior,
+        radial: false,
+    };
+    accepts(sq, sq.error(points), &prob, params)
+}
+
+fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params) -> bool {
+    let fit = Fit { sq: *sq, error, iterations: 0, accepted: false };
     let points = prob.points;
     let (bbox_min, bbox_max) = robust_box(points);
     let half_diag = 0.5 * linalg::norm(linalg::sub(bbox_max, bbox_min));
