@@ -146,9 +146,14 @@ impl MapSq {
     /// of the bounding box [−a, a] and each grid point is moved along its ray from the centre onto the surface
     /// (F is homogeneous: p·F(p)^(−ε1/2)); unlike the (η, ω) parametrisation this stays even on box-like shapes,
     /// whose parametric samples crowd at the edges.
-    pub fn for_each_sample(&self, mut f: impl FnMut(Vec3)) {
+    pub fn for_each_sample(&self, f: impl FnMut(Vec3)) {
+        self.for_each_sample_spaced(SQ_SAMPLE_SPACING, f)
+    }
+
+    /// [`MapSq::for_each_sample`] with grid points about `spacing` metres apart (at most 64 per face side).
+    pub fn for_each_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3)) {
         let [a0, a1, a2] = self.sq.scales;
-        let count = |len: f32| (libm::ceilf(2.0 * len / SQ_SAMPLE_SPACING) as usize).clamp(1, 64);
+        let count = |len: f32| (libm::ceilf(2.0 * len / spacing) as usize).clamp(1, 64);
         // (face axis w, in-face axes u, v) with their half-lengths; `place` puts (w, u, v) back in x, y, z order.
         type Place = fn(f32, f32, f32) -> Vec3;
         let faces: [(f32, f32, f32, Place); 3] = [
