@@ -143,6 +143,40 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
             assert_eq!(*cell, expected, "tabletop {v:?} {k}");
         }
     }
+    // The map-level metrics: every cell is summary.json's; the synthetic sets have ground truth, so every
+    // column is filled except the superquadric ones of the variants without superquadrics.
+    let t4 = table(&md, "## Map-level metrics");
+    assert_eq!(t4.len(), Variant::ALL.len() * 2);
+    let keys = [
+        "free_space_violation",
+        "free_space_violation_sq",
+        "sq_behind_support",
+        "adhesion_map",
+        "adhesion_map_sq",
+        "g2r_true_rmse_m",
+        "g2r_true_sq_rmse_m",
+        "penetration_p95_m",
+        "penetration_max_m",
+        "penetration_sq_p95_m",
+        "penetration_sq_max_m",
+    ];
+    for name in ["desk", "tabletop"] {
+        for v in Variant::ALL {
+            let s = summary(&out, name, v);
+            let row = &t4[&(method_name(v).to_string(), name.to_string())];
+            assert_eq!(row.len(), keys.len());
+            for (cell, k) in row.iter().zip(keys) {
+                let expected = if k.ends_with("_m") { fmt_m(&s[k]) } else { fmt(&s[k]) };
+                assert_eq!(*cell, expected, "{name} {v:?} {k}");
+            }
+        }
+    }
+    let full = &t4[&("M2-SMap".to_string(), "desk".to_string())];
+    assert!(full.iter().all(|c| c != "–"), "full on desk: {full:?}");
+    let mmog = &t4[&("MMOG".to_string(), "desk".to_string())];
+    assert_eq!((mmog[1].as_str(), mmog[6].as_str(), mmog[10].as_str()), ("–", "–", "–"), "MMOG has no superquadric");
+    assert_eq!(mmog[2], "0.000");
+
     let png = image::open(out.join("comparison.png")).unwrap();
     assert_eq!((png.width(), png.height()), m2smap::report::FIGURE_SIZE);
     let svg = fs::read_to_string(out.join("comparison.svg")).unwrap();

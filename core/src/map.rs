@@ -142,16 +142,33 @@ impl MapPlane<'_> {
 
 impl MapSq {
     /// Surface points about [`SQ_SAMPLE_SPACING`] apart, kept where the outward normal faces the camera at the
-    /// origin (a superquadric with ε ≤ 2 is convex: this is its visible side). The grid is laid on the six faces
-    /// of the bounding box [−a, a] and each grid point is moved along its ray from the centre onto the surface
-    /// (F is homogeneous: p·F(p)^(−ε1/2)); unlike the (η, ω) parametrisation this stays even on box-like shapes,
-    /// whose parametric samples crowd at the edges.
+    /// origin (a superquadric with ε ≤ 2 is convex: this is its visible side). The grid is that of
+    /// [`MapSq::for_each_surface_sample`].
     pub fn for_each_sample(&self, f: impl FnMut(Vec3)) {
         self.for_each_sample_spaced(SQ_SAMPLE_SPACING, f)
     }
 
     /// [`MapSq::for_each_sample`] with grid points about `spacing` metres apart (at most 64 per face side).
     pub fn for_each_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3)) {
+        self.for_each_grid_point(spacing, |l, p| {
+            if linalg::dot(self.sq.normal_at_local(l), p) < 0.0 {
+                f(p);
+            }
+        });
+    }
+
+    /// Every surface point of the sample grid, about [`SQ_SAMPLE_SPACING`] apart, whichever way its normal
+    /// faces (camera frame, metres): the whole closed surface, for metrics that judge the parts the camera
+    /// cannot see. The grid is laid on the six faces of the bounding box [−a, a] and each grid point is moved
+    /// along its ray from the centre onto the surface (F is homogeneous: p·F(p)^(−ε1/2)); unlike the (η, ω)
+    /// parametrisation this stays even on box-like shapes, whose parametric samples crowd at the edges.
+    pub fn for_each_surface_sample(&self, mut f: impl FnMut(Vec3)) {
+        self.for_each_grid_point(SQ_SAMPLE_SPACING, |_, p| f(p));
+    }
+
+    /// The surface grid of [`MapSq::for_each_surface_sample`] with points about `spacing` metres apart: `f(l, p)`
+    /// with the local point l and the camera frame point p (metres) of every finite grid point.
+    fn for_each_grid_point(&self, spacing: f32, mut f: impl FnMut(Vec3, Vec3)) {
         let [a0, a1, a2] = self.sq.scales;
         let count = |len: f32| (libm::ceilf(2.0 * len / spacing) as usize).clamp(1, 64);
         // (face axis w, in-face axes u, v) with their half-lengths; `place` puts (w, u, v) back in x, y, z order.
@@ -172,8 +189,8 @@ impl MapSq {
                         let k = libm::powf(self.sq.implicit(l), -0.5 * self.sq.eps[0]);
                         let l = linalg::scale(l, k);
                         let p = linalg::add(self.sq.centre, linalg::mat_vec(&self.sq.rotation, l));
-                        if linalg::dot(self.sq.normal_at_local(l), p) < 0.0 && p.iter().all(|x| x.is_finite()) {
-                            f(p);
+                        if p.iter().all(|x| x.is_finite()) {
+                            f(l, p);
                         }
                     }
                 }
@@ -208,5 +225,68 @@ impl Primitive<'_> {
             Primitive::Sq(s) => s.for_each_sample(f),
             Primitive::Gmm(g) => g.for_each_sample(f),
         }
+    }
+
+    /// Every surface sample of this primitive, camera frame, metres: a superquadric's whole closed surface
+    /// ([`MapSq::for_each_surface_sample`]); planes and Gaussians as [`Primitive::for_each_sample`].
+    pub fn for_each_surface_sample(&self, f: impl FnMut(Vec3)) {
+        match self {
+            Primitive::Sq(s) => s.for_each_surface_sample(f),
+            Primitive::Plane(_) | Primitive::Gmm(_) => self.for_each_sample(f),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+
+    use super::*;
+    use std::vec::Vec;
+
+    fn sq(centre: Vec3, scales: Vec3, eps: [f32; 2]) -> MapSq {
+        let sq = Superquadric { scales, eps, centre, rotation: linalg::IDENTITY };
+        MapSq { sq, instance: 1, class: 0, score: 1.0, track: 0 }
+    }
+
+    #[test]
+    fn surface_samples_cover_the_whole_shape_and_include_the_camera_facing_ones() {
+        // A sphere of radius 0.1 m, 1 m in front of the camera: every surface sample lies on the sphere, about
+        // half face the camera, and those are exactly the SPEC samples (same grid, same order).
+        let s = sq([0.0, 0.0, 1.0], [0.1, 0.1, 0.1], [1.0, 1.0]);
+        let (mut all, mut visible) = (Vec::new(), Vec::new());
+        s.for_each_surface_sample(|p| all.push(p));
+        s.for_each_sample(|p| visible.push(p));
+        for p in &all {
+            let r = linalg::norm(linalg::sub(*p, s.sq.centre));
+            assert!((r - 0.1).abs() < 1e-4, "sample off the sphere: r = {r}");
+        }
+        let facing: Vec<Vec3> =
+            all.iter().copied().filter(|p| linalg::dot(linalg::sub(*p, s.sq.centre), *p) < 0.0).collect();
+        assert_eq!(facing, visible);
+        let (n, m) = (visible.len(), all.len());
+        assert!(n * 5 > m * 2 && n * 5 < m * 3, "{n} of {m} samples face the camera");
+        // The far half lies behind the centre: samples up to z = 1.1 m.
+        let zmax = all.iter().map(|p| p[2]).fold(f32::MIN, f32::max);
+        assert!((zmax - 1.1).abs() < 0.01, "far side reaches {zmax}");
+        // Through `Primitive`: the superquadric's whole surface; a Gaussian's samples unchanged.
+        let mut n = 0;
+        Primitive::Sq(s).for_each_surface_sample(|_| n += 1);
+        assert_eq!(n, all.len());
+        let g = MapGmm {
+            mean: [0.0, 0.0, 2.0],
+            rotation: linalg::IDENTITY,
+            sigmas: [0.05, 0.02, 0.003],
+            count: 300,
+            colour: [0; 3],
+            instance: 0,
+            class: 0,
+            score: 0.0,
+            support_ratio: 0.0,
+        };
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        Primitive::Gmm(g).for_each_surface_sample(|p| a.push(p));
+        Primitive::Gmm(g).for_each_sample(|p| b.push(p));
+        assert_eq!(a, b);
     }
 }

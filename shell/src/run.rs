@@ -160,6 +160,44 @@ pub struct FrameRecord {
     pub n_adh: Option<f64>,
     /// Mean SQ rotation jump, degrees.
     pub j_sq_deg: Option<f64>,
+    /// Map-level (beside SPEC §4, from all the surface samples of the frame's own map, [`eval::map_samples`]):
+    /// fraction of the samples whose status is known that lie in free space ([`eval::free_space`]).
+    pub free_space_violation: Option<f64>,
+    /// The same over the superquadric samples.
+    pub free_space_violation_sq: Option<f64>,
+    /// Superquadrics with more than 2 % of their samples behind the unlabelled support ([`eval::behind_support`];
+    /// needs `gt/`).
+    pub sq_behind_support: Option<f64>,
+    /// Largest fraction of one superquadric's samples behind the support (null without superquadrics).
+    pub sq_behind_support_max_fraction: Option<f64>,
+    /// Deepest superquadric sample behind the support, metres (null without superquadrics).
+    pub sq_behind_support_max_m: Option<f64>,
+    /// Map-level adhesion cases: primitives whose depth-consistent samples fall on two ground-truth ids
+    /// ([`eval::adhesion_cases`]; needs `gt/`).
+    pub adhesion_map: Option<f64>,
+    /// Map-level adhesion cases among the superquadrics.
+    pub adhesion_map_sq: Option<f64>,
+    /// G2R against the true surfaces, all samples, metres ([`eval::true_surface_metrics`]; needs
+    /// `gt/objects.json` and a pose).
+    pub g2r_true_rmse_m: Option<f64>,
+    /// G2R against the true surfaces, superquadric samples, metres.
+    pub g2r_true_sq_rmse_m: Option<f64>,
+    /// 95th percentile over the frame's primitives of their penetration of other true solids, metres.
+    pub penetration_p95_m: Option<f64>,
+    /// Largest penetration of a primitive, metres.
+    pub penetration_max_m: Option<f64>,
+    /// 95th percentile over the frame's superquadrics of their penetration, metres.
+    pub penetration_sq_p95_m: Option<f64>,
+    /// Largest penetration of a superquadric, metres.
+    pub penetration_sq_max_m: Option<f64>,
+    /// Time the map-level metrics took for this frame, milliseconds (not part of `ms`).
+    pub map_metrics_ms: f64,
+    /// Penetration of every primitive, metres (kept for the run's percentiles, not written).
+    #[serde(skip)]
+    pub penetrations: Vec<f64>,
+    /// Penetration of every superquadric, metres (not written).
+    #[serde(skip)]
+    pub penetrations_sq: Vec<f64>,
     /// Pool use.
     pub pools: BTreeMap<String, PoolRecord>,
     /// Overflow events of all pools.
@@ -223,6 +261,34 @@ pub struct Summary {
     pub n_adh: Option<f64>,
     /// Mean J_sq, degrees.
     pub j_sq_deg: Option<f64>,
+    /// Mean map-level free-space violation (fraction of known samples; see [`FrameRecord`]).
+    pub free_space_violation: Option<f64>,
+    /// Mean free-space violation of the superquadric samples.
+    pub free_space_violation_sq: Option<f64>,
+    /// Mean superquadrics behind the support per frame.
+    pub sq_behind_support: Option<f64>,
+    /// Mean per-frame largest fraction of a superquadric behind the support.
+    pub sq_behind_support_max_fraction: Option<f64>,
+    /// Mean per-frame deepest superquadric sample behind the support, metres.
+    pub sq_behind_support_max_m: Option<f64>,
+    /// Mean map-level adhesion cases per frame.
+    pub adhesion_map: Option<f64>,
+    /// Mean map-level superquadric adhesion cases per frame.
+    pub adhesion_map_sq: Option<f64>,
+    /// Mean G2R against the true surfaces, metres.
+    pub g2r_true_rmse_m: Option<f64>,
+    /// Mean G2R of the superquadric samples against the true surfaces, metres.
+    pub g2r_true_sq_rmse_m: Option<f64>,
+    /// 95th percentile of the penetration over all primitives of all frames, metres.
+    pub penetration_p95_m: Option<f64>,
+    /// Largest penetration of any primitive in the run, metres.
+    pub penetration_max_m: Option<f64>,
+    /// 95th percentile of the penetration over all superquadrics of all frames, metres.
+    pub penetration_sq_p95_m: Option<f64>,
+    /// Largest penetration of any superquadric in the run, metres.
+    pub penetration_sq_max_m: Option<f64>,
+    /// Median time of the map-level metrics per frame, milliseconds.
+    pub map_metrics_ms_median: f64,
     /// Peak use of every pool over the run.
     pub pools: BTreeMap<String, PoolRecord>,
     /// Overflow events over the run.
@@ -409,6 +475,8 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {msg} [{elapsed} < {eta}]")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    let objects = dataset.root.join("gt").join("objects.json");
+    let surfaces = if objects.is_file() { crate::synth::read_surfaces(&objects)? } else { None };
     let mut records = Vec::with_capacity(n);
     let mut wire_buf = vec![0u8; WIRE_BUFFER_BYTES];
     for (index, fref) in dataset.frames.iter().take(n).enumerate() {
@@ -447,6 +515,17 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             (None, None) => 0,
         });
         let reconstruction = eval::reconstruction_metrics(&mapper, &checked);
+        let start = Instant::now();
+        let map = eval::map_samples(&mapper);
+        let obs = eval::Observation { frame, params: mapper.params(), gt: gt.as_deref() };
+        let free = eval::free_space(&map, &obs);
+        let behind = eval::behind_support(&map, &obs);
+        let adhesion = eval::adhesion_cases(&map, &obs);
+        let truth = surfaces.as_deref().zip(fref.pose).map(|(s, pose)| eval::true_surface_metrics(&map, &pose, s));
+        let map_metrics_ms = start.elapsed().as_secs_f64() * 1e3;
+        let penetrations = truth.as_ref().map(|t| t.penetrations(false)).unwrap_or_default();
+        let penetrations_sq = truth.as_ref().map(|t| t.penetrations(true)).unwrap_or_default();
+        let has_sq = behind.as_ref().filter(|b| !b.fractions.is_empty());
         let gmm = report.gmms as f64;
         let sq = params.variant.superquadrics().then_some(report.sqs as f64);
         let record = FrameRecord {
@@ -489,6 +568,22 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             a_s: semantic.a_s,
             n_adh: Some(semantic.n_adh as f64),
             j_sq_deg: (report.sq_jumps > 0).then(|| report.sq_jump_sum_deg as f64 / report.sq_jumps as f64),
+            free_space_violation: free.fraction(),
+            free_space_violation_sq: free.fraction_sq(),
+            sq_behind_support: behind.as_ref().map(|b| b.sqs as f64),
+            sq_behind_support_max_fraction: has_sq.and_then(|b| b.max_fraction()),
+            sq_behind_support_max_m: has_sq.map(|b| b.max_depth_m),
+            adhesion_map: adhesion.map(|a| a.0 as f64),
+            adhesion_map_sq: adhesion.map(|a| a.1 as f64),
+            g2r_true_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_rmse_m),
+            g2r_true_sq_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_sq_rmse_m),
+            penetration_p95_m: eval::percentile(&penetrations, 0.95),
+            penetration_max_m: penetrations.iter().copied().reduce(f64::max),
+            penetration_sq_p95_m: eval::percentile(&penetrations_sq, 0.95),
+            penetration_sq_max_m: penetrations_sq.iter().copied().reduce(f64::max),
+            map_metrics_ms,
+            penetrations,
+            penetrations_sq,
             pools: pool_records(&report),
             overflow_events: report.overflow_events as u64,
         };
@@ -508,6 +603,11 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
 fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
     let v: Vec<f64> = values.flatten().collect();
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// The values of every frame's list, in one list.
+fn pooled(records: &[FrameRecord], list: impl Fn(&FrameRecord) -> &[f64]) -> Vec<f64> {
+    records.iter().flat_map(|r| list(r).iter().copied()).collect()
 }
 
 fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> Summary {
@@ -572,6 +672,21 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
             let jumps: u64 = records.iter().map(|r| r.sq_jumps as u64).sum();
             (jumps > 0).then(|| records.iter().map(|r| r.sq_jump_sum_deg).sum::<f64>() / jumps as f64)
         },
+        free_space_violation: mean_of(records.iter().map(|r| r.free_space_violation)),
+        free_space_violation_sq: mean_of(records.iter().map(|r| r.free_space_violation_sq)),
+        sq_behind_support: mean_of(records.iter().map(|r| r.sq_behind_support)),
+        sq_behind_support_max_fraction: mean_of(records.iter().map(|r| r.sq_behind_support_max_fraction)),
+        sq_behind_support_max_m: mean_of(records.iter().map(|r| r.sq_behind_support_max_m)),
+        adhesion_map: mean_of(records.iter().map(|r| r.adhesion_map)),
+        adhesion_map_sq: mean_of(records.iter().map(|r| r.adhesion_map_sq)),
+        g2r_true_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_rmse_m)),
+        g2r_true_sq_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_sq_rmse_m)),
+        // Over every primitive of every frame, not a mean of per-frame values.
+        penetration_p95_m: eval::percentile(&pooled(records, |r| &r.penetrations), 0.95),
+        penetration_max_m: pooled(records, |r| &r.penetrations).into_iter().reduce(f64::max),
+        penetration_sq_p95_m: eval::percentile(&pooled(records, |r| &r.penetrations_sq), 0.95),
+        penetration_sq_max_m: pooled(records, |r| &r.penetrations_sq).into_iter().reduce(f64::max),
+        map_metrics_ms_median: median(&records.iter().map(|r| r.map_metrics_ms).collect::<Vec<_>>()),
         pools,
         overflow_events: records.iter().map(|r| r.overflow_events).sum(),
     }

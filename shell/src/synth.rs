@@ -7,16 +7,16 @@
 use std::fs;
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use m2smap_core::points::mix32;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::dataset::{Camera, LoadedFrame, Pose};
 use crate::masks::{FrameMasks, LabelTable, Pixels};
 use m2smap_core::Instance;
 
 /// Geometry of one surface, world frame (z up), metres.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum Shape {
     /// The plane n·x = offset (n unit), seen from the side n points to.
@@ -239,19 +239,26 @@ impl Shape {
         }
     }
 
-    /// Unsigned distance from a world point to the surface, metres. Exact for planes, boxes, cylinders and
-    /// spheres; for a superquadric it is the radial distance ‖l‖·|1 − F(l)^(−ε1/2)| (along the ray from the
-    /// centre through the point, using F(λl) = λ^(2/ε1)·F(l)), exact on that ray and an over-estimate elsewhere,
-    /// good to a few per cent near the surface of the smooth shapes used here.
+    /// Unsigned distance from a world point to the surface, metres: |[`Shape::signed_distance`]|.
     pub fn distance(&self, p: [f64; 3]) -> f64 {
+        self.signed_distance(p).abs()
+    }
+
+    /// Signed distance from a world point to the surface, metres: negative inside. The inside of a plane is the
+    /// half-space behind it (n·x < offset: below a floor, behind a wall); that of a box, cylinder, sphere or
+    /// superquadric is the solid. Exact for planes, boxes, cylinders and spheres; for a superquadric it is the
+    /// radial distance ‖l‖·(1 − F(l)^(−ε1/2)) (along the ray from the centre through the point, using
+    /// F(λl) = λ^(2/ε1)·F(l)), exact on that ray and an over-estimate of |d| elsewhere, good to a few per cent
+    /// near the surface of the smooth shapes used here (−min aᵢ at the centre).
+    pub fn signed_distance(&self, p: [f64; 3]) -> f64 {
         match *self {
-            Shape::Plane { normal, offset } => (dot(normal, p) - offset).abs(),
+            Shape::Plane { normal, offset } => dot(normal, p) - offset,
             Shape::Box { centre, half, yaw } => {
                 let q = to_local(sub(p, centre), yaw);
                 let d = [q[0].abs() - half[0], q[1].abs() - half[1], q[2].abs() - half[2]];
                 let outside = [d[0].max(0.0), d[1].max(0.0), d[2].max(0.0)];
                 let inside = d[0].max(d[1]).max(d[2]).min(0.0);
-                (dot(outside, outside).sqrt() + inside).abs()
+                dot(outside, outside).sqrt() + inside
             }
             Shape::Cylinder { centre, axis, radius, half_height } => {
                 let rel = sub(p, centre);
@@ -259,20 +266,23 @@ impl Shape {
                 let radial = sub(rel, scale(axis, along));
                 let d = [dot(radial, radial).sqrt() - radius, along.abs() - half_height];
                 let outside = (d[0].max(0.0).powi(2) + d[1].max(0.0).powi(2)).sqrt();
-                (outside + d[0].max(d[1]).min(0.0)).abs()
+                outside + d[0].max(d[1]).min(0.0)
             }
             Shape::Sphere { centre, radius } => {
                 let rel = sub(p, centre);
-                (dot(rel, rel).sqrt() - radius).abs()
+                dot(rel, rel).sqrt() - radius
             }
             Shape::Superquadric { centre, scales, eps, yaw } => {
                 let l = to_local(sub(p, centre), yaw);
                 let r = dot(l, l).sqrt();
                 let f = sq_inside_outside(l, scales, eps);
-                if r < 1e-12 || f <= 0.0 || !f.is_finite() {
-                    return scales[0].min(scales[1]).min(scales[2]); // at the centre
+                if r < 1e-12 || f <= 0.0 {
+                    return -scales[0].min(scales[1]).min(scales[2]); // at the centre
                 }
-                r * (1.0 - f.powf(-0.5 * eps[0])).abs()
+                if !f.is_finite() {
+                    return r; // so far out that F overflows: the shape is a point next to r
+                }
+                r * (1.0 - f.powf(-0.5 * eps[0]))
             }
         }
     }
@@ -291,7 +301,7 @@ fn normalize_or_radial(v: [f64; 3], l: [f64; 3]) -> [f64; 3] {
 }
 
 /// One surface of a scene.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Surface {
     /// Name.
     pub name: String,
@@ -314,6 +324,23 @@ impl Surface {
     /// Distance from a world point to this surface, metres ([`Shape::distance`]).
     pub fn distance(&self, p: [f64; 3]) -> f64 {
         self.shape.distance(p)
+    }
+
+    /// Signed distance from a world point to this surface, metres, negative inside ([`Shape::signed_distance`]).
+    pub fn signed_distance(&self, p: [f64; 3]) -> f64 {
+        self.shape.signed_distance(p)
+    }
+}
+
+/// The true surfaces of a synthetic dataset, world frame: the `surfaces` of a `gt/objects.json` written by
+/// [`Scene::write_tum_degraded`]; `None` when the file has no `surfaces` (e.g. YCB-Video's list of labels).
+pub fn read_surfaces(path: &Path) -> Result<Option<Vec<Surface>>> {
+    let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let malformed = |e: serde_json::Error| anyhow!("{}: malformed ground-truth objects: {e}", path.display());
+    let mut json: serde_json::Value = serde_json::from_str(&text).map_err(malformed)?;
+    match json.get_mut("surfaces").map(serde_json::Value::take) {
+        Some(surfaces) => Ok(Some(serde_json::from_value(surfaces).map_err(malformed)?)),
+        None => Ok(None),
     }
 }
 
@@ -863,4 +890,99 @@ fn to_local(p: [f64; 3], yaw: f64) -> [f64; 3] {
 fn from_local(p: [f64; 3], yaw: f64) -> [f64; 3] {
     let (c, s) = (yaw.cos(), yaw.sin());
     [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: f64, b: f64) -> bool {
+        (a - b).abs() < 1e-9
+    }
+
+    /// Checks `signed_distance` at points with a closed-form answer, and `distance` = |signed|.
+    fn check(shape: Shape, cases: &[([f64; 3], f64)]) {
+        for &(p, expected) in cases {
+            let d = shape.signed_distance(p);
+            assert!(close(d, expected), "{shape:?} at {p:?}: {d} ≠ {expected}");
+            assert!(close(shape.distance(p), expected.abs()));
+        }
+    }
+
+    #[test]
+    fn signed_distance_of_a_plane_is_negative_behind_it() {
+        // Floor: 3 cm below is −0.03. Wall y = 1.6 facing −y: 5 cm behind it (y = 1.65) is −0.05.
+        check(
+            Shape::Plane { normal: [0.0, 0.0, 1.0], offset: 0.0 },
+            &[([0.3, -2.0, -0.03], -0.03), ([1.0, 1.0, 0.2], 0.2)],
+        );
+        check(
+            Shape::Plane { normal: [0.0, -1.0, 0.0], offset: -1.6 },
+            &[([0.0, 1.65, 1.0], -0.05), ([0.0, 1.0, 0.0], 0.6)],
+        );
+    }
+
+    #[test]
+    fn signed_distance_of_a_rotated_box() {
+        let (centre, yaw) = ([1.0, 2.0, 0.5], 0.5);
+        let shape = Shape::Box { centre, half: [0.1, 0.2, 0.3], yaw };
+        let at = |l: [f64; 3]| add(centre, from_local(l, yaw));
+        check(
+            shape,
+            &[
+                (at([0.15, 0.0, 0.0]), 0.05),   // in front of the +x face
+                (at([0.05, 0.0, 0.0]), -0.05),  // inside, nearest the +x face
+                (at([0.0, 0.0, 0.0]), -0.1),    // the centre: the nearest face is 0.1 away
+                (at([0.0, -0.17, 0.1]), -0.03), // inside, nearest the −y face
+                (at([0.13, 0.24, 0.0]), 0.05),  // beyond an edge: √(0.03² + 0.04²)
+                (at([0.0, 0.0, -0.32]), 0.02),  // below the bottom
+            ],
+        );
+    }
+
+    #[test]
+    fn signed_distance_of_a_tilted_cylinder() {
+        let axis = normalize([1.0, 0.0, 1.0]);
+        let centre = [0.2, 0.3, 0.4];
+        let shape = Shape::Cylinder { centre, axis, radius: 0.05, half_height: 0.1 };
+        let radial = [0.0, 1.0, 0.0]; // perpendicular to the axis
+        let at = |r: f64, h: f64| add(centre, add(scale(radial, r), scale(axis, h)));
+        check(
+            shape,
+            &[
+                (at(0.07, 0.0), 0.02),  // beside the lateral surface
+                (at(0.03, 0.0), -0.02), // inside, nearest the lateral surface
+                (at(0.0, 0.08), -0.02), // inside, nearest the cap
+                (at(0.0, 0.13), 0.03),  // beyond the cap
+                (at(0.08, 0.14), 0.05), // beyond the rim: √(0.03² + 0.04²)
+            ],
+        );
+    }
+
+    #[test]
+    fn signed_distance_of_a_sphere() {
+        let shape = Shape::Sphere { centre: [0.1, 0.2, 0.3], radius: 0.07 };
+        check(shape, &[([0.1, 0.2, 0.4], 0.03), ([0.13, 0.2, 0.3], -0.04), ([0.1, 0.2, 0.3], -0.07)]);
+    }
+
+    #[test]
+    fn signed_distance_of_a_superquadric_along_its_rays() {
+        // ε = (1, 1) with equal half-axes is a sphere: r − a everywhere.
+        let ball = Shape::Superquadric { centre: [0.0, 0.0, 1.0], scales: [0.1; 3], eps: [1.0, 1.0], yaw: 0.0 };
+        check(ball, &[([0.0, 0.0, 1.25], 0.15), ([0.03, 0.04, 1.0], -0.05), ([0.0, 0.06, 1.08], 0.0)]);
+        // A rotated box-like superquadric: along a local axis F = (x/a)^(2/ε), so the radial distance is x − a.
+        let (centre, yaw) = ([0.5, -0.2, 0.3], 0.7);
+        let shape = Shape::Superquadric { centre, scales: [0.14, 0.1, 0.06], eps: [0.3, 0.3], yaw };
+        let at = |l: [f64; 3]| add(centre, from_local(l, yaw));
+        check(
+            shape,
+            &[
+                (at([0.2, 0.0, 0.0]), 0.06),
+                (at([0.1, 0.0, 0.0]), -0.04),
+                (at([0.0, -0.13, 0.0]), 0.03),
+                (at([0.0, 0.0, -0.05]), -0.01),
+                (centre, -0.06), // the centre: minus the smallest half-axis
+            ],
+        );
+    }
 }
