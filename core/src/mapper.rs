@@ -576,25 +576,23 @@ impl<'s> Mapper<'s> {
             // multi-guess search runs when there is none or the refined fit is not acceptable.
             let support_centre = linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5);
             let track_centre = pose.map_or(support_centre, |p| p.to_world(support_centre));
-            let seen = |sq: &Superquadric| front_is_observed(sq, &checked.frame, &params);
             let warm = self
                 .tracker
                 .nearest(track_centre, object.class, &params)
                 .and_then(|i| self.tracker.tracks.get(i))
                 .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), &evidence, &params))
-                .filter(|f| f.accepted && seen(&f.sq));
+                .filter(|f| f.accepted);
             state = SQ_REJECTED;
             let fit = warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params));
             if let Some(fit) = fit {
                 error = fit.error;
-                if fit.accepted && seen(&fit.sq) {
+                if fit.accepted {
                     state = SQ_ACCEPTED;
                     let updated = self.tracker.update(&to_track(&fit.sq), object.class, &params, params.variant.aligns());
                     // The map shows the smoothed state when this frame's points and evidence allow it, else
                     // this frame's fit: a track's history never puts a shape where the camera now sees nothing.
                     let smoothed = to_camera(&updated.sq);
-                    let consistent = superquadric::is_consistent(&smoothed, points, &evidence, &params) && seen(&smoothed);
-                    sq = if consistent { smoothed } else { fit.sq };
+                    sq = if superquadric::is_consistent(&smoothed, points, &evidence, &params) { smoothed } else { fit.sq };
                     self.report.max_track_step_m = self.report.max_track_step_m.max(updated.step_m);
                     track = updated.index.and_then(|i| self.tracker.tracks.get(i)).map_or(0, |t| t.id);
                     if updated.new {
@@ -845,49 +843,3 @@ const PATCH_MARGIN: f32 = 0.05;
 
 /// How far behind a plane an object's point may lie and still count as on the object's side, metres.
 const SUPPORT_SIDE_TOLERANCE: f32 = 0.02;
-
-/// Most of a superquadric's camera-facing surface (share) that may lie outside the image or hidden more than
-/// the noise behind the observed surface: beyond it the camera saw too little of the shape to commit to it, and
-/// the object keeps its Gaussians (which describe exactly what was seen).
-const MAX_UNSEEN_FRONT: f32 = 0.4;
-/// Most of a superquadric's camera-facing surface (share) that may lie in front of the observed surface (in
-/// free space) by more than the noise.
-const MAX_FREE_FRONT: f32 = 0.05;
-
-/// Whether the camera saw most of `sq`'s camera-facing surface where the shape puts it: its front samples (grid
-/// about max(3 cm, largest half-axis / 6) apart, [`MapSq::for_each_sample_spaced`]) are compared with the depth
-/// of their pixel; within max(3 cm, 3σ(z)) is seen, behind is hidden, in front is free space; pixels without
-/// depth are unknown and not counted. See [`MAX_UNSEEN_FRONT`] and [`MAX_FREE_FRONT`].
-fn front_is_observed(sq: &Superquadric, frame: &Frame<'_>, params: &Params) -> bool {
-    let largest = sq.scales.iter().fold(0.0f32, |m, &a| m.max(a));
-    let (lo, hi) = frame.raw_range(params);
-    let (w, h) = (frame.width as f32, frame.height as f32);
-    let (mut seen, mut unseen, mut free) = (0u32, 0u32, 0u32);
-    let shape = MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0 };
-    shape.for_each_sample_spaced((largest / 6.0).max(0.03), |p| {
-        let Some([u, v]) = frame.intrinsics.project(p) else {
-            unseen += 1;
-            return;
-        };
-        let (u, v) = (libm::roundf(u), libm::roundf(v));
-        if !(u >= 0.0 && v >= 0.0 && u < w && v < h) {
-            unseen += 1;
-            return;
-        }
-        let raw = frame.depth.get(v as usize * frame.width as usize + u as usize).copied().unwrap_or(0);
-        if !(lo..=hi).contains(&raw) {
-            return;
-        }
-        let z = frame.metres(raw);
-        let tolerance = (3.0 * params.depth_noise(z)).max(0.03);
-        if p[2] > z + tolerance {
-            unseen += 1;
-        } else if p[2] < z - tolerance {
-            free += 1;
-        } else {
-            seen += 1;
-        }
-    });
-    let total = (seen + unseen + free).max(1) as f32;
-    unseen as f32 <= MAX_UNSEEN_FRONT * total && free as f32 <= MAX_FREE_FRONT * total
-}

@@ -155,6 +155,9 @@ pub const DEPTH_TOLERANCE_SIGMAS: f32 = 3.0;
 pub const FREE_SPACE_WINDOW_PX: usize = 2;
 /// A superquadric counts as behind the support when more than this fraction of its samples is.
 pub const BEHIND_SUPPORT_FRACTION: f64 = 0.02;
+/// Samples within this many pixels of a ground-truth id boundary are not counted by the map-level adhesion
+/// (a contact line between an object and its support, not a glued primitive).
+pub const ADHESION_BOUNDARY_PX: usize = 2;
 /// A primitive is a map-level adhesion case when two ground-truth ids each hold at least this fraction of its
 /// depth-consistent samples …
 pub const ADHESION_MIN_SHARE: f64 = 0.1;
@@ -351,8 +354,18 @@ pub fn is_adhesion_case(prim: &PrimSamples, obs: &Observation<'_>) -> Option<boo
     for &x in &prim.samples {
         let Some((u, v)) = pixel_of(&obs.frame, x) else { continue };
         let Some(z) = observed_depth(&obs.frame, u, v) else { continue };
-        if (x[2] - z).abs() <= obs.tolerance(z) {
-            *counts.entry(obs.gt_id(u, v).unwrap_or(0)).or_insert(0) += 1;
+        if (x[2] - z).abs() > obs.tolerance(z) {
+            continue;
+        }
+        // A sample within ADHESION_BOUNDARY_PX of a ground-truth id boundary is a contact line (an object's
+        // bottom row on the table), ambiguous at the 3 cm sample spacing: it counts for neither id.
+        let id = obs.gt_id(u, v).unwrap_or(0);
+        let r = ADHESION_BOUNDARY_PX;
+        let (w, h) = (obs.frame.width as usize, obs.frame.height as usize);
+        let pure = (v.saturating_sub(r)..=(v + r).min(h - 1))
+            .all(|y| (u.saturating_sub(r)..=(u + r).min(w - 1)).all(|x| obs.gt_id(x, y).unwrap_or(0) == id));
+        if pure {
+            *counts.entry(id).or_insert(0) += 1;
         }
     }
     let consistent: usize = counts.values().sum();
