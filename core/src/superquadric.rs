@@ -323,7 +323,7 @@ pub const MAX_SUPPORTS: usize = 4;
 /// Most free-space probes one fit uses: [`PROBE_GRID`]² rays × [`PROBE_LEVELS`] depths.
 pub const MAX_PROBES: usize = PROBE_GRID * PROBE_GRID * PROBE_LEVELS;
 /// Rays per side of the probe grid over an object's (grown) pixel box.
-pub const PROBE_GRID: usize = 8;
+pub const PROBE_GRID: usize = 7;
 /// Depths probed along each ray.
 pub const PROBE_LEVELS: usize = 3;
 
