@@ -95,6 +95,9 @@ pub struct FrameReport {
     pub gmms: u32,
     /// Objects whose fit was rejected (they keep their Gaussians).
     pub sq_rejected: u32,
+    /// Objects whose fit this frame was not acceptable but whose track state is consistent with the frame (the
+    /// map shows the track's state; counted in `sqs`).
+    pub sq_held: u32,
     /// Flat patches kept as support candidates of the superquadrics (at most `plane::MAX_FLAT_PATCHES`).
     pub flat_patches: u32,
     /// Flat patches not kept because the table was full (the largest are kept).
@@ -571,6 +574,7 @@ impl<'s> Mapper<'s> {
             let evidence = superquadric::Evidence {
                 supports: supports.get(..n_supports).unwrap_or(&[]),
                 free: probes.get(..n_probes).unwrap_or(&[]),
+                view: Some((&checked.frame, &params)),
             };
             // Warm start from the track this object would join (its state in the camera frame); the full
             // multi-guess search runs when there is none or the refined fit is not acceptable.
@@ -603,6 +607,22 @@ impl<'s> Mapper<'s> {
                         self.report.sq_jump_sum_deg += updated.jump_deg;
                         self.report.sq_jumps += 1;
                     }
+                }
+            }
+            // No acceptable fit this frame: the object's track carries it when its state is consistent with
+            // this frame's points and evidence (the track is not updated).
+            if state != SQ_ACCEPTED {
+                let held = self
+                    .tracker
+                    .nearest(track_centre, object.class, &params)
+                    .and_then(|i| self.tracker.tracks.get(i))
+                    .map(|t| (t.id, to_camera(&t.sq)))
+                    .filter(|(_, q)| superquadric::is_consistent(q, points, &evidence, &params));
+                if let Some((id, q)) = held {
+                    state = SQ_ACCEPTED;
+                    sq = q;
+                    track = id;
+                    self.report.sq_held += 1;
                 }
             }
         }

@@ -346,6 +346,10 @@ pub struct Evidence<'a> {
     /// Points known to be empty: on the rays of observed pixels, in front of the observed surface by more than
     /// the noise ([`free_space_probes`]).
     pub free: &'a [Vec3],
+    /// The frame with its depth and the parameters (sensor noise), when the fit may look at it: a fitted shape's
+    /// own front samples that lie in observed free space then become probes too ([`front_free_probes`]), and
+    /// acceptance bounds their share.
+    pub view: Option<(&'a Frame<'a>, &'a Params)>,
 }
 
 /// Free-space probes for an object seen in `frame`: on a [`PROBE_GRID`]² grid of rays over its pixel box
@@ -513,6 +517,8 @@ struct Problem<'a> {
     extent_points: &'a [Vec3],
     /// Supports and free-space probes.
     evidence: Evidence<'a>,
+    /// Free-space probes found on earlier shapes of this fit ([`front_free_probes`]).
+    extra: &'a [Vec3],
     /// Half the support's larger extent across the line of sight, metres (the hidden-depth prior).
     lateral: f32,
     /// Size prior weight w, m⁻².
@@ -585,7 +591,7 @@ fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
         let e = (sq.lowest_along(h.normal) - h.offset).min(0.0);
         SUPPORT_WEIGHT * n * e * e
     }).sum();
-    let free: f32 = prob.evidence.free.iter().filter_map(|&p| probe_distance(sq, p, prob.radial)).map(|(_, _, d)| {
+    let free: f32 = prob.evidence.free.iter().chain(prob.extra).filter_map(|&p| probe_distance(sq, p, prob.radial)).map(|(_, _, d)| {
         let e = d.min(0.0);
         FREE_WEIGHT * e * e
     }).sum();
@@ -843,7 +849,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
             normal.add(&row, r, 1.0);
         }
         // Free-space probes inside the shape: one-sided residuals d < 0 with the same rows as the data.
-        for &p in prob.evidence.free {
+        for &p in prob.evidence.free.iter().chain(prob.extra) {
             if let Some((l, pw, d)) = probe_distance(&base, p, prob.radial) {
                 if d < 0.0 {
                     let (r, row) = jac.distance_row(l, &pw);
@@ -966,7 +972,7 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     if points.len() < SQ_PARAMS {
         return None;
     }
-    let prob = Problem { points, extent_points: points, evidence: *evidence, lateral: lateral_half_extent(points), prior: params.sq_scale_prior, radial: false };
+    let prob = Problem { points, extent_points: points, evidence: *evidence, lateral: lateral_half_extent(points), prior: params.sq_scale_prior, radial: false, extra: &[] };
     let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
     let (e0, e1, e2) = (linalg::column(pca, 0), linalg::column(pca, 1), linalg::column(pca, 2));
     let frames = [
@@ -1022,12 +1028,10 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     // beyond its support, which the visible points alone do not forbid), the next guesses in cost order get
     // their turn, up to `FINISHED_CANDIDATES` in all. The first acceptable one wins, else the cheapest.
     let mut best: Option<(f32, Fit)> = None;
-    for run in runs.iter_mut().take(FINISHED_CANDIDATES).filter(|r| r.cost.is_finite()) {
-        let more = params.lm_max_iters;
-        levenberg_marquardt(&prob, run, more, params);
-        let sq = model(&run.theta, &run.base);
-        let mut fit = Fit { sq, error: sq.error(points), iterations: run.iterations, accepted: false };
-        fit.accepted = is_acceptable(&fit, &prob, params);
+    for (k, run) in runs.iter_mut().take(FINISHED_CANDIDATES).filter(|r| r.cost.is_finite()).enumerate() {
+        // The free-front rounds are for the most promising candidates only (they cost as much as the finish).
+        let rounds = if k < FRONT_CANDIDATES { FRONT_ROUNDS } else { 0 };
+        let fit = finish(&prob, run, params.lm_max_iters, rounds, params);
         if fit.accepted {
             return Some(fit);
         }
@@ -1044,7 +1048,7 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
     if points.len() < SQ_PARAMS {
         return None;
     }
-    let prob = Problem { points, extent_points: points, evidence: *evidence, lateral: lateral_half_extent(points), prior: params.sq_scale_prior, radial: false };
+    let prob = Problem { points, extent_points: points, evidence: *evidence, lateral: lateral_half_extent(points), prior: params.sq_scale_prior, radial: false, extra: &[] };
     let mut theta = [0.0; SQ_PARAMS];
     theta[..3].copy_from_slice(&start.scales);
     theta[3..5].copy_from_slice(if params.variant.ellipsoids_only() { &ELLIPSOID_EPS } else { &start.eps });
@@ -1058,11 +1062,109 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
         iterations: 0,
         converged: false,
     };
-    levenberg_marquardt(&prob, &mut run, params.lm_max_iters, params);
+    Some(finish(&prob, &mut run, params.lm_max_iters, FRONT_ROUNDS, params))
+}
+
+/// Rounds of [`finish`] that turn the shape's own free front samples into probes.
+const FRONT_ROUNDS: usize = 2;
+/// Finished candidates of a cold fit that get the free-front rounds.
+const FRONT_CANDIDATES: usize = 2;
+/// LM iterations after each such round.
+const FRONT_ITERS: u32 = 4;
+/// Most probes the rounds of one [`finish`] add.
+pub const MAX_FRONT_PROBES: usize = 48;
+/// Most of a shape's camera-facing samples (share, of those with depth) that may lie in observed free space in
+/// an accepted fit (the probes alone are a sparse test; these samples are where the shape is).
+const FRONT_FREE_MAX_SHARE: f32 = 0.1;
+
+/// Runs `iterations` LM iterations of `run` on `prob`; then, while the shape puts camera-facing samples in
+/// observed free space and the frame is at hand (`Evidence::view`), up to `rounds` times those samples
+/// become probes ([`front_free_probes`]) and LM runs [`FRONT_ITERS`] more. The fit is judged with every probe.
+fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, params: &Params) -> Fit {
+    levenberg_marquardt(prob, run, iterations, params);
+    let mut extra = [[0.0f32; 3]; MAX_FRONT_PROBES];
+    let mut n_extra = 0;
+    if let Some((frame, _)) = prob.evidence.view {
+        for _ in 0..rounds {
+            let sq = model(&run.theta, &run.base);
+            let room = extra.get_mut(n_extra..).unwrap_or(&mut []);
+            let (_, _, added) = front_free_probes(&sq, frame, params, room);
+            if added == 0 {
+                break;
+            }
+            n_extra += added;
+            let more = Problem { extra: extra.get(..n_extra).unwrap_or(&[]), ..*prob };
+            run.cost = cost(&sq, &more);
+            run.converged = false;
+            levenberg_marquardt(&more, run, FRONT_ITERS, params);
+        }
+    }
+    let judged = Problem { extra: extra.get(..n_extra).unwrap_or(&[]), ..*prob };
     let sq = model(&run.theta, &run.base);
-    let mut fit = Fit { sq, error: sq.error(points), iterations: run.iterations, accepted: false };
-    fit.accepted = is_acceptable(&fit, &prob, params);
-    Some(fit)
+    let mut fit = Fit { sq, error: sq.error(prob.points), iterations: run.iterations, accepted: false };
+    fit.accepted = is_acceptable(&fit, &judged, params);
+    fit
+}
+
+/// The camera-facing samples of `sq` (grid about max(1 cm, largest half-axis / 3) apart) that lie in observed
+/// free space: their pixel has depth, and they lie in front of the nearest valid depth within 2 px of it by more
+/// than max(2 cm, 3σ(z)).
+/// Returns (free samples, samples with depth, probes written): for every k-th free sample (k from the grid's
+/// size and `out`'s length), a probe on its ray 1 cm behind it (inside the shape) but still in front of the free-space
+/// limit.
+pub fn front_free_probes(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &mut [Vec3]) -> (usize, usize, usize) {
+    let largest = sq.scales.iter().fold(0.0f32, |m, &a| m.max(a));
+    let spacing = (largest / 3.0).max(0.01);
+    let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0 };
+    let (w, h) = (frame.width as i32, frame.height as i32);
+    let (lo, hi) = frame.raw_range(params);
+    // The free-space limit on the ray of a sample, with its pixel, when the sample is in front of it.
+    let free = |p: Vec3| -> Option<Option<(f32, f32, f32)>> {
+        let [u, v] = frame.intrinsics.project(p)?;
+        let (u, v) = (linalg::floor_i32(u + 0.5), linalg::floor_i32(v + 0.5));
+        if u < 0 || v < 0 || u >= w || v >= h {
+            return None;
+        }
+        // A pixel without depth is unknown: sensors drop the depth along object edges, where the object may well
+        // be (a band of dropout beside a silhouette must not cut the shape back to the last measured pixel).
+        let own = frame.depth.get(v as usize * w as usize + u as usize).copied().unwrap_or(0);
+        if !(lo..=hi).contains(&own) {
+            return None;
+        }
+        let mut nearest = u16::MAX;
+        for y in (v - 2).max(0)..=(v + 2).min(h - 1) {
+            for x in (u - 2).max(0)..=(u + 2).min(w - 1) {
+                let raw = frame.depth.get(y as usize * w as usize + x as usize).copied().unwrap_or(0);
+                if (lo..=hi).contains(&raw) {
+                    nearest = nearest.min(raw);
+                }
+            }
+        }
+        let z_obs = frame.metres(nearest);
+        let until = z_obs - (3.0 * params.depth_noise(z_obs)).max(FREE_SPACE_MARGIN);
+        Some((p[2] < until).then_some((u as f32, v as f32, until)))
+    };
+    // One pass: every `stride`-th free sample becomes a probe, the stride set from the grid's size so the probes
+    // spread over the whole shape.
+    let per_side = |a: f32| (libm::ceilf(2.0 * a / spacing) as usize).clamp(1, 64);
+    let [a0, a1, a2] = sq.scales;
+    let grid = 2 * (per_side(a1) * per_side(a2) + per_side(a2) * per_side(a0) + per_side(a0) * per_side(a1));
+    let stride = (grid / 2).div_ceil(out.len().max(1)).max(1);
+    let (mut n_free, mut n_depth, mut written) = (0usize, 0usize, 0usize);
+    let mut slots = out.iter_mut();
+    shape.for_each_sample_spaced(spacing, |p| {
+        let Some(f) = free(p) else { return };
+        n_depth += 1;
+        let Some((u, v, until)) = f else { return };
+        if n_free % stride == 0 {
+            if let Some(slot) = slots.next() {
+                *slot = frame.intrinsics.unproject(u, v, (p[2] + 0.01).min(until));
+                written += 1;
+            }
+        }
+        n_free += 1;
+    });
+    (n_free, n_depth, written)
 }
 
 /// Whether `sq` stays within the extent of its support `points` (camera frame): the LM's extent constraint
@@ -1071,16 +1173,17 @@ pub fn stays_within_support(sq: &Superquadric, points: &[Vec3]) -> bool {
     extent_excess(sq, points, lateral_half_extent(points), |a| SUPPORT_MARGIN + 0.15 * a).metres.iter().all(|&e| e <= 0.0)
 }
 
-/// Whether `sq` respects the `evidence`: no support plane undercut by more than 1 cm, and at most 2 % of the
-/// free-space probes more than 1 cm inside the shape.
-pub fn respects_evidence(sq: &Superquadric, evidence: &Evidence<'_>) -> bool {
+/// Whether `sq` respects the `evidence` (and the `extra` probes of its fit): no support plane undercut by more
+/// than 1 cm, and at most 2 % of the free-space probes more than 1 cm inside the shape.
+pub fn respects_evidence(sq: &Superquadric, evidence: &Evidence<'_>, extra: &[Vec3]) -> bool {
     let supported = evidence.supports.iter().all(|h| sq.lowest_along(h.normal) >= h.offset - SUPPORT_TOLERANCE);
     let inside = evidence
         .free
         .iter()
+        .chain(extra)
         .filter(|&&p| probe_distance(sq, p, false).is_some_and(|(_, _, d)| d < -FREE_TOLERANCE))
         .count();
-    supported && inside as f32 <= FREE_MAX_SHARE * evidence.free.len() as f32
+    supported && inside as f32 <= FREE_MAX_SHARE * (evidence.free.len() + extra.len()) as f32
 }
 
 /// The box between the 5th and 95th percentiles of `points` along each camera axis, metres: the support's extent
@@ -1143,6 +1246,7 @@ pub fn is_consistent(sq: &Superquadric, points: &[Vec3], evidence: &Evidence<'_>
         lateral: lateral_half_extent(points),
         prior: params.sq_scale_prior,
         radial: false,
+        extra: &[],
     };
     accepts(sq, sq.error(points), &prob, params)
 }
@@ -1168,7 +1272,11 @@ fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params) -
         && centred
         && sized
         && stays_within_support(&fit.sq, points)
-        && respects_evidence(&fit.sq, &prob.evidence)
+        && respects_evidence(&fit.sq, &prob.evidence, prob.extra)
+        && prob.evidence.view.is_none_or(|(frame, _)| {
+            let (free, total, _) = front_free_probes(&fit.sq, frame, params, &mut []);
+            free as f32 <= FRONT_FREE_MAX_SHARE * total as f32
+        })
 }
 
 #[cfg(test)]
