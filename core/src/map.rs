@@ -162,8 +162,13 @@ impl MapSq {
     /// cannot see. The grid is laid on the six faces of the bounding box [−a, a] and each grid point is moved
     /// along its ray from the centre onto the surface (F is homogeneous: p·F(p)^(−ε1/2)); unlike the (η, ω)
     /// parametrisation this stays even on box-like shapes, whose parametric samples crowd at the edges.
-    pub fn for_each_surface_sample(&self, mut f: impl FnMut(Vec3)) {
-        self.for_each_grid_point(SQ_SAMPLE_SPACING, |_, p| f(p));
+    pub fn for_each_surface_sample(&self, f: impl FnMut(Vec3)) {
+        self.for_each_surface_sample_spaced(SQ_SAMPLE_SPACING, f);
+    }
+
+    /// [`MapSq::for_each_surface_sample`] with grid points about `spacing` metres apart.
+    pub fn for_each_surface_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3)) {
+        self.for_each_grid_point(spacing, |_, p| f(p));
     }
 
     /// The surface grid of [`MapSq::for_each_surface_sample`] with points about `spacing` metres apart: `f(l, p)`

@@ -561,16 +561,77 @@ impl<'s> Mapper<'s> {
                 },
                 None => *q,
             };
+            let support_centre = linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5);
+            let track_centre = pose.map_or(support_centre, |p| p.to_world(support_centre));
             // What else the frame saw: the planes the object is on, and free space around it.
             let mut supports = [superquadric::HalfSpace { normal: [0.0; 3], offset: 0.0 }; superquadric::MAX_SUPPORTS];
             let patches = self.patches.get(..self.patches_len).unwrap_or(&[]);
             // Objects by geometry (MMQ) are fused clusters themselves: a patch may be the object's own face.
             let patches = if params.variant.geometric_objects() { &[] } else { patches };
             let n_supports = support_planes(self.planes.as_slice(), patches, object.instance, points, params.g_p, &mut supports);
-            let mut probes = [[0.0f32; 3]; superquadric::MAX_PROBES];
+            let mut probes = [[0.0f32; 3]; superquadric::MAX_PROBES + FOREIGN_PROBES + OBSTACLE_PROBES];
             let (z_near, z_far) = points.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2])));
             let z_far = z_far + 0.5 * (z_far - z_near).max(0.0);
             let n_probes = superquadric::free_space_probes(&checked.frame, object.pixel_bbox, z_near, z_far, &params, &mut probes);
+            // What was seen of the other objects near this one lies outside it (convex objects do not
+            // interpenetrate; their contact faces are hidden, their visible faces are not): each nearby Gaussian
+            // of another object gives its mean and the ends of its two in-surface axes (±1σ) as probes.
+            let (near_lo, near_hi) = (linalg::sub(object.bbox_min, [FOREIGN_REACH; 3]), linalg::add(object.bbox_max, [FOREIGN_REACH; 3]));
+            let mut n_probes = n_probes;
+            let others = self.gaussians.as_slice().iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize != k);
+            let near = |m: Vec3| m.iter().zip(near_lo.iter().zip(&near_hi)).all(|(x, (lo, hi))| x >= lo && x <= hi);
+            'gaussians: for g in others.filter(|g| near(g.mean)) {
+                let s = g.sigmas();
+                let ([a0, a1, _], [s0, s1, _]) = (g.axes, s);
+                let ends = [
+                    g.mean,
+                    linalg::add(g.mean, linalg::scale(a0, s0)),
+                    linalg::sub(g.mean, linalg::scale(a0, s0)),
+                    linalg::add(g.mean, linalg::scale(a1, s1)),
+                    linalg::sub(g.mean, linalg::scale(a1, s1)),
+                ];
+                for p in ends {
+                    let Some(slot) = probes.get_mut(n_probes) else { break 'gaussians };
+                    *slot = p;
+                    n_probes += 1;
+                }
+            }
+            // The other objects' shapes the tracker holds (accepted earlier this frame, or last frame), except
+            // the track this object would join and any whose centre lies inside this object's support: points
+            // just inside them are occupied, so outside this shape. Without it a box grows through the hidden
+            // contact face into the can beside it (2.4 cm on the clutter scene).
+            let own = self.tracker.nearest(track_centre, object.class, &params);
+            let frame_no = self.tracker.frame;
+            let inside_support = |c: Vec3| c.iter().zip(object.bbox_min.iter().zip(&object.bbox_max)).all(|(x, (lo, hi))| x >= lo && x <= hi);
+            let mut obstacles = [[0.0f32; 3]; OBSTACLE_PROBES];
+            let mut n_obstacles = 0;
+            for (i, t) in self.tracker.tracks.as_slice().iter().enumerate() {
+                let other = to_camera(&t.sq);
+                if Some(i) == own || t.last_frame.saturating_add(1) < frame_no || inside_support(other.centre) {
+                    continue;
+                }
+                let reach = other.scales.iter().fold(0.0f32, |m, &a| m.max(a)) + FOREIGN_REACH;
+                let near = other.centre.iter().zip(object.bbox_min.iter().zip(&object.bbox_max)).all(|(c, (lo, hi))| *c >= lo - reach && *c <= hi + reach);
+                if !near {
+                    continue;
+                }
+                let shrunk = Superquadric { scales: other.scales.map(|a| (a - 0.005).max(0.8 * a)), ..other };
+                let largest = shrunk.scales.iter().fold(0.0f32, |m, &a| m.max(a));
+                MapSq { sq: shrunk, instance: 0, class: 0, score: 0.0, track: 0 }.for_each_surface_sample_spaced((largest / 3.0).max(0.01), |p| {
+                    let close = p.iter().zip(near_lo.iter().zip(&near_hi)).all(|(x, (lo, hi))| x >= lo && x <= hi);
+                    if close {
+                        if let Some(slot) = obstacles.get_mut(n_obstacles) {
+                            *slot = p;
+                            n_obstacles += 1;
+                        }
+                    }
+                });
+            }
+            for &p in obstacles.get(..n_obstacles).unwrap_or(&[]) {
+                let Some(slot) = probes.get_mut(n_probes) else { break };
+                *slot = p;
+                n_probes += 1;
+            }
             let evidence = superquadric::Evidence {
                 supports: supports.get(..n_supports).unwrap_or(&[]),
                 free: probes.get(..n_probes).unwrap_or(&[]),
@@ -578,8 +639,6 @@ impl<'s> Mapper<'s> {
             };
             // Warm start from the track this object would join (its state in the camera frame); the full
             // multi-guess search runs when there is none or the refined fit is not acceptable.
-            let support_centre = linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5);
-            let track_centre = pose.map_or(support_centre, |p| p.to_world(support_centre));
             let warm = self
                 .tracker
                 .nearest(track_centre, object.class, &params)
@@ -863,3 +922,10 @@ const PATCH_MARGIN: f32 = 0.05;
 
 /// How far behind a plane an object's point may lie and still count as on the object's side, metres.
 const SUPPORT_SIDE_TOLERANCE: f32 = 0.02;
+
+/// Most probes from other objects' Gaussians in one fit (five per Gaussian).
+const FOREIGN_PROBES: usize = 40;
+/// How far beyond an object's support box another object's Gaussian mean may lie and still bound it, metres.
+const FOREIGN_REACH: f32 = 0.05;
+/// Most probes inside other objects' tracked shapes in one fit.
+const OBSTACLE_PROBES: usize = 48;
