@@ -347,7 +347,7 @@ pub struct Evidence<'a> {
     /// the noise ([`free_space_probes`]).
     pub free: &'a [Vec3],
     /// The frame with its depth and the parameters (sensor noise), when the fit may look at it: a fitted shape's
-    /// own front samples that lie in observed free space then become probes too ([`front_free_probes`]), and
+    /// own front samples that lie in observed free space then become probes too ([`front_view`]), and
     /// acceptance bounds their share.
     pub view: Option<(&'a Frame<'a>, &'a Params)>,
 }
@@ -517,7 +517,7 @@ struct Problem<'a> {
     extent_points: &'a [Vec3],
     /// Supports and free-space probes.
     evidence: Evidence<'a>,
-    /// Free-space probes found on earlier shapes of this fit ([`front_free_probes`]).
+    /// Free-space probes found on earlier shapes of this fit ([`front_view`]).
     extra: &'a [Vec3],
     /// Half the support's larger extent across the line of sight, metres (the hidden-depth prior).
     lateral: f32,
@@ -702,7 +702,7 @@ const FIRST_SCREEN_ITERS: u32 = 4;
 /// Guesses that continue from the first screening round to [`SCREEN_ITERS`].
 const SECOND_SCREEN_RUNS: usize = 9;
 /// Screened guesses that continue, in cost order, to the full iteration budget until one is acceptable.
-const FINISHED_CANDIDATES: usize = 5;
+const FINISHED_CANDIDATES: usize = 3;
 /// Most fit points the screening iterations see (evenly strided over the fit points).
 const SCREEN_POINTS: usize = 50;
 
@@ -1072,6 +1072,9 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
 const FRONT_ROUNDS: usize = 2;
 /// Finished candidates of a cold fit that get the free-front rounds.
 const FRONT_CANDIDATES: usize = 2;
+/// Most of a shape's camera-facing samples (share) that may lie hidden behind observed surfaces or outside the
+/// image in an accepted fit: beyond it the camera saw too little of the shape to commit to it.
+const FRONT_UNSEEN_MAX_SHARE: f32 = 0.4;
 /// LM iterations after each such round.
 const FRONT_ITERS: u32 = 4;
 /// Most probes the rounds of one [`finish`] add.
@@ -1082,7 +1085,7 @@ const FRONT_FREE_MAX_SHARE: f32 = 0.1;
 
 /// Runs `iterations` LM iterations of `run` on `prob`; then, while the shape puts camera-facing samples in
 /// observed free space and the frame is at hand (`Evidence::view`), up to `rounds` times those samples
-/// become probes ([`front_free_probes`]) and LM runs [`FRONT_ITERS`] more. The fit is judged with every probe.
+/// become probes ([`front_view`]) and LM runs [`FRONT_ITERS`] more. The fit is judged with every probe.
 fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, params: &Params) -> Fit {
     levenberg_marquardt(prob, run, iterations, params);
     let mut extra = [[0.0f32; 3]; MAX_FRONT_PROBES];
@@ -1091,7 +1094,7 @@ fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, par
         for _ in 0..rounds {
             let sq = model(&run.theta, &run.base);
             let room = extra.get_mut(n_extra..).unwrap_or(&mut []);
-            let (_, _, added) = front_free_probes(&sq, frame, params, room);
+            let added = front_view(&sq, frame, params, room).written;
             if added == 0 {
                 break;
             }
@@ -1109,65 +1112,95 @@ fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, par
     fit
 }
 
-/// The camera-facing samples of `sq` (grid about max(1 cm, largest half-axis / 3) apart) that lie in observed
-/// free space: their pixel has depth, and they lie in front of the nearest valid depth within 2 px of it by more
-/// than max(2 cm, 3σ(z)).
-/// Returns (free samples, samples with depth, probes written): for every k-th free sample (k from the grid's
-/// size and `out`'s length), a probe on its ray 1 cm behind it (inside the shape) but still in front of the free-space
-/// limit.
-pub fn front_free_probes(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &mut [Vec3]) -> (usize, usize, usize) {
+/// How the camera saw the camera-facing surface of a shape ([`front_view`]), in samples.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FrontView {
+    /// Samples in observed free space: their pixel has depth and they lie in front of every valid depth within
+    /// 2 px by more than max(2 cm, 3σ(z)).
+    pub free: usize,
+    /// Samples hidden: behind every valid depth within 2 px by more than that.
+    pub hidden: usize,
+    /// Samples that project outside the image.
+    pub outside: usize,
+    /// Samples whose pixel has depth (free, hidden or seen).
+    pub with_depth: usize,
+    /// Probes written.
+    pub written: usize,
+}
+
+/// The camera-facing samples of `sq` (grid about max(1 cm, largest half-axis / 3) apart) judged against the
+/// frame ([`FrontView`]; a pixel without depth is unknown: sensors drop the depth along object edges, where the
+/// object may well be). For every k-th free sample (k from the grid's size and `out`'s length) a probe goes on
+/// its ray 1 cm behind it (inside the shape) but still in front of the free-space limit.
+pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &mut [Vec3]) -> FrontView {
+    enum Seen {
+        Outside,
+        Unknown,
+        Free(f32, f32, f32),
+        Hidden,
+        Visible,
+    }
     let largest = sq.scales.iter().fold(0.0f32, |m, &a| m.max(a));
     let spacing = (largest / 3.0).max(0.01);
     let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0 };
     let (w, h) = (frame.width as i32, frame.height as i32);
     let (lo, hi) = frame.raw_range(params);
-    // The free-space limit on the ray of a sample, with its pixel, when the sample is in front of it.
-    let free = |p: Vec3| -> Option<Option<(f32, f32, f32)>> {
-        let [u, v] = frame.intrinsics.project(p)?;
+    let judge = |p: Vec3| -> Seen {
+        let Some([u, v]) = frame.intrinsics.project(p) else { return Seen::Outside };
         let (u, v) = (linalg::floor_i32(u + 0.5), linalg::floor_i32(v + 0.5));
         if u < 0 || v < 0 || u >= w || v >= h {
-            return None;
+            return Seen::Outside;
         }
-        // A pixel without depth is unknown: sensors drop the depth along object edges, where the object may well
-        // be (a band of dropout beside a silhouette must not cut the shape back to the last measured pixel).
         let own = frame.depth.get(v as usize * w as usize + u as usize).copied().unwrap_or(0);
         if !(lo..=hi).contains(&own) {
-            return None;
+            return Seen::Unknown;
         }
-        let mut nearest = u16::MAX;
+        let (mut nearest, mut farthest) = (u16::MAX, 0u16);
         for y in (v - 2).max(0)..=(v + 2).min(h - 1) {
             for x in (u - 2).max(0)..=(u + 2).min(w - 1) {
                 let raw = frame.depth.get(y as usize * w as usize + x as usize).copied().unwrap_or(0);
                 if (lo..=hi).contains(&raw) {
                     nearest = nearest.min(raw);
+                    farthest = farthest.max(raw);
                 }
             }
         }
-        let z_obs = frame.metres(nearest);
-        let until = z_obs - (3.0 * params.depth_noise(z_obs)).max(FREE_SPACE_MARGIN);
-        Some((p[2] < until).then_some((u as f32, v as f32, until)))
+        let margin = |z: f32| (3.0 * params.depth_noise(z)).max(FREE_SPACE_MARGIN);
+        let (near, far) = (frame.metres(nearest), frame.metres(farthest));
+        if p[2] < near - margin(near) {
+            Seen::Free(u as f32, v as f32, near - margin(near))
+        } else if p[2] > far + margin(far) {
+            Seen::Hidden
+        } else {
+            Seen::Visible
+        }
     };
-    // One pass: every `stride`-th free sample becomes a probe, the stride set from the grid's size so the probes
-    // spread over the whole shape.
     let per_side = |a: f32| (libm::ceilf(2.0 * a / spacing) as usize).clamp(1, 64);
     let [a0, a1, a2] = sq.scales;
     let grid = 2 * (per_side(a1) * per_side(a2) + per_side(a2) * per_side(a0) + per_side(a0) * per_side(a1));
     let stride = (grid / 2).div_ceil(out.len().max(1)).max(1);
-    let (mut n_free, mut n_depth, mut written) = (0usize, 0usize, 0usize);
+    let mut view = FrontView::default();
     let mut slots = out.iter_mut();
-    shape.for_each_sample_spaced(spacing, |p| {
-        let Some(f) = free(p) else { return };
-        n_depth += 1;
-        let Some((u, v, until)) = f else { return };
-        if n_free % stride == 0 {
-            if let Some(slot) = slots.next() {
-                *slot = frame.intrinsics.unproject(u, v, (p[2] + 0.01).min(until));
-                written += 1;
-            }
+    shape.for_each_sample_spaced(spacing, |p| match judge(p) {
+        Seen::Outside => view.outside += 1,
+        Seen::Unknown => {}
+        Seen::Hidden => {
+            view.hidden += 1;
+            view.with_depth += 1;
         }
-        n_free += 1;
+        Seen::Visible => view.with_depth += 1,
+        Seen::Free(u, v, until) => {
+            if view.free % stride == 0 {
+                if let Some(slot) = slots.next() {
+                    *slot = frame.intrinsics.unproject(u, v, (p[2] + 0.01).min(until));
+                    view.written += 1;
+                }
+            }
+            view.free += 1;
+            view.with_depth += 1;
+        }
     });
-    (n_free, n_depth, written)
+    view
 }
 
 /// Whether `sq` stays within the extent of its support `points` (camera frame): the LM's extent constraint
@@ -1277,8 +1310,9 @@ fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params) -
         && stays_within_support(&fit.sq, points)
         && respects_evidence(&fit.sq, &prob.evidence, prob.extra)
         && prob.evidence.view.is_none_or(|(frame, _)| {
-            let (free, total, _) = front_free_probes(&fit.sq, frame, params, &mut []);
-            free as f32 <= FRONT_FREE_MAX_SHARE * total as f32
+            let v = front_view(&fit.sq, frame, params, &mut []);
+            v.free as f32 <= FRONT_FREE_MAX_SHARE * v.with_depth as f32
+                && (v.hidden + v.outside) as f32 <= FRONT_UNSEEN_MAX_SHARE * (v.with_depth + v.outside) as f32
         })
 }
 
