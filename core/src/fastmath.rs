@@ -57,7 +57,7 @@ fn exp2(t: f32) -> f32 {
 /// `x^y` for x ≥ 0 (see the module docs for the error bound and special values).
 #[inline]
 pub fn pow(x: f32, y: f32) -> f32 {
-    if x >= f32::MIN_POSITIVE && x < f32::INFINITY {
+    if (f32::MIN_POSITIVE..f32::INFINITY).contains(&x) {
         exp2(y * log2_normal(x))
     } else if x.is_nan() || x < 0.0 || y.is_nan() {
         f32::NAN
@@ -82,7 +82,7 @@ pub fn pow(x: f32, y: f32) -> f32 {
 /// NaN for a negative or NaN x, ∞ for ∞.
 #[inline]
 pub fn ln(x: f32) -> f32 {
-    if x >= f32::MIN_POSITIVE && x < f32::INFINITY {
+    if (f32::MIN_POSITIVE..f32::INFINITY).contains(&x) {
         log2_normal(x) * LN_2
     } else if x == f32::INFINITY {
         x

@@ -233,7 +233,7 @@ impl Superquadric {
         let [tx, ty, tz] = pw.t;
         let (s, p, g) = (tx + ty, pw.xy, pw.g);
         let f = p + tz;
-        if !(f > 1e-20) || !(g > 0.0) {
+        if f.is_nan() || f <= 1e-20 || g.is_nan() || g <= 0.0 {
             return [0.0; 5];
         }
         let q = |x: f32, a: f32| (x / a) * (x / a);
@@ -312,7 +312,7 @@ impl Superquadric {
 fn lp_norm2(x: f32, y: f32, p: f32) -> f32 {
     let (x, y) = (libm::fabsf(x), libm::fabsf(y));
     let m = x.max(y);
-    if !(m > 0.0) || !m.is_finite() {
+    if m.is_nan() || m <= 0.0 || !m.is_finite() {
         return if m.is_finite() { 0.0 } else { m };
     }
     m * fastmath::pow(fastmath::pow(x / m, p) + fastmath::pow(y / m, p), 1.0 / p)
@@ -363,7 +363,7 @@ pub fn free_space_probes(frame: &Frame<'_>, pixel_box: [u16; 4], z_near: f32, z_
     let (gu, gv) = ((u1 - u0) / 4 + 3, (v1 - v0) / 4 + 3);
     let (u0, u1) = ((u0 - gu).max(0), (u1 + gu).min(w - 1));
     let (v0, v1) = ((v0 - gv).max(0), (v1 + gv).min(h - 1));
-    if u1 < u0 || v1 < v0 || !(z_far >= z_near) {
+    if u1 < u0 || v1 < v0 || z_far.is_nan() || z_near.is_nan() || z_far < z_near {
         return 0;
     }
     let (lo, hi) = frame.raw_range(params);
