@@ -573,64 +573,19 @@ impl<'s> Mapper<'s> {
             let (z_near, z_far) = points.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2])));
             let z_far = z_far + 0.5 * (z_far - z_near).max(0.0);
             let n_probes = superquadric::free_space_probes(&checked.frame, object.pixel_bbox, z_near, z_far, &params, &mut probes);
-            // What was seen of the other objects near this one lies outside it (convex objects do not
-            // interpenetrate; their contact faces are hidden, their visible faces are not): each nearby Gaussian
-            // of another object gives its mean and the ends of its two in-surface axes (±1σ) as probes.
-            let (near_lo, near_hi) = (linalg::sub(object.bbox_min, [FOREIGN_REACH; 3]), linalg::add(object.bbox_max, [FOREIGN_REACH; 3]));
-            let mut n_probes = n_probes;
-            let others = self.gaussians.as_slice().iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize != k);
-            let near = |m: Vec3| m.iter().zip(near_lo.iter().zip(&near_hi)).all(|(x, (lo, hi))| x >= lo && x <= hi);
-            'gaussians: for g in others.filter(|g| near(g.mean)) {
-                let s = g.sigmas();
-                let ([a0, a1, _], [s0, s1, _]) = (g.axes, s);
-                let ends = [
-                    g.mean,
-                    linalg::add(g.mean, linalg::scale(a0, s0)),
-                    linalg::sub(g.mean, linalg::scale(a0, s0)),
-                    linalg::add(g.mean, linalg::scale(a1, s1)),
-                    linalg::sub(g.mean, linalg::scale(a1, s1)),
-                ];
-                for p in ends {
-                    let Some(slot) = probes.get_mut(n_probes) else { break 'gaussians };
-                    *slot = p;
-                    n_probes += 1;
-                }
-            }
-            // The other objects' shapes the tracker holds (accepted earlier this frame, or last frame), except
-            // the track this object would join and any whose centre lies inside this object's support: points
-            // just inside them are occupied, so outside this shape. Without it a box grows through the hidden
-            // contact face into the can beside it (2.4 cm on the clutter scene).
+            // Other objects near this one (convex objects do not interpenetrate): what was seen of them, and
+            // their tracked shapes.
+            let reach = (linalg::sub(object.bbox_min, [FOREIGN_REACH; 3]), linalg::add(object.bbox_max, [FOREIGN_REACH; 3]));
+            let rest = probes.get_mut(n_probes..).unwrap_or(&mut []);
+            let n_probes = n_probes + neighbour_gaussian_probes(self.gaussians.as_slice(), k, reach, rest);
             let own = self.tracker.nearest(track_centre, object.class, &params);
-            let frame_no = self.tracker.frame;
-            let inside_support = |c: Vec3| c.iter().zip(object.bbox_min.iter().zip(&object.bbox_max)).all(|(x, (lo, hi))| x >= lo && x <= hi);
-            let mut obstacles = [[0.0f32; 3]; OBSTACLE_PROBES];
-            let mut n_obstacles = 0;
-            for (i, t) in self.tracker.tracks.as_slice().iter().enumerate() {
-                let other = to_camera(&t.sq);
-                if Some(i) == own || t.last_frame.saturating_add(1) < frame_no || inside_support(other.centre) {
-                    continue;
-                }
-                let reach = other.scales.iter().fold(0.0f32, |m, &a| m.max(a)) + FOREIGN_REACH;
-                let near = other.centre.iter().zip(object.bbox_min.iter().zip(&object.bbox_max)).all(|(c, (lo, hi))| *c >= lo - reach && *c <= hi + reach);
-                if !near {
-                    continue;
-                }
-                let shrunk = Superquadric { scales: other.scales.map(|a| (a - 0.005).max(0.8 * a)), ..other };
-                let largest = shrunk.scales.iter().fold(0.0f32, |m, &a| m.max(a));
-                MapSq { sq: shrunk, instance: 0, class: 0, score: 0.0, track: 0 }.for_each_surface_sample_spaced((largest / 3.0).max(0.01), |p| {
-                    let close = p.iter().zip(near_lo.iter().zip(&near_hi)).all(|(x, (lo, hi))| x >= lo && x <= hi);
-                    if close {
-                        if let Some(slot) = obstacles.get_mut(n_obstacles) {
-                            *slot = p;
-                            n_obstacles += 1;
-                        }
-                    }
-                });
-            }
-            for &p in obstacles.get(..n_obstacles).unwrap_or(&[]) {
-                let Some(slot) = probes.get_mut(n_probes) else { break };
-                *slot = p;
-                n_probes += 1;
+            let others = self.tracker.tracks.as_slice().iter().enumerate().filter(|&(i, t)| {
+                Some(i) != own && t.last_frame.saturating_add(1) >= self.tracker.frame
+            });
+            let mut n_probes = n_probes;
+            for (_, t) in others {
+                let rest = probes.get_mut(n_probes..).unwrap_or(&mut []);
+                n_probes += neighbour_shape_probes(&to_camera(&t.sq), &object, reach, rest);
             }
             let evidence = superquadric::Evidence {
                 supports: supports.get(..n_supports).unwrap_or(&[]),
@@ -929,3 +884,60 @@ const FOREIGN_PROBES: usize = 40;
 const FOREIGN_REACH: f32 = 0.05;
 /// Most probes inside other objects' tracked shapes in one fit.
 const OBSTACLE_PROBES: usize = 48;
+
+/// Probes from what was seen of the other objects near object `k` (what was seen of a neighbour lies outside
+/// this object; its contact face is hidden, its visible faces are not): each Gaussian of another object whose
+/// mean lies in the box `reach` (camera frame, metres) gives its mean and the ends of its two in-surface axes
+/// (±1σ). Returns the number written to `out`.
+fn neighbour_gaussian_probes(gaussians: &[Gaussian], k: usize, reach: (Vec3, Vec3), out: &mut [Vec3]) -> usize {
+    let (lo, hi) = reach;
+    let near = |m: Vec3| m.iter().zip(lo.iter().zip(&hi)).all(|(x, (lo, hi))| x >= lo && x <= hi);
+    let mut slots = out.iter_mut();
+    let mut n = 0;
+    for g in gaussians.iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize != k && near(g.mean)) {
+        let ([a0, a1, _], [s0, s1, _]) = (g.axes, g.sigmas());
+        let ends = [
+            g.mean,
+            linalg::add(g.mean, linalg::scale(a0, s0)),
+            linalg::sub(g.mean, linalg::scale(a0, s0)),
+            linalg::add(g.mean, linalg::scale(a1, s1)),
+            linalg::sub(g.mean, linalg::scale(a1, s1)),
+        ];
+        for p in ends {
+            let Some(slot) = slots.next() else { return n };
+            *slot = p;
+            n += 1;
+        }
+    }
+    n
+}
+
+/// Probes just inside another object's shape `other` (camera frame; its half-axes shrunk by 5 mm, at most 20 %)
+/// within the box `reach` of `object`, unless `other`'s centre lies inside `object`'s support box (then it may be
+/// this object's own older state) or `other` is beyond reach. At most [`OBSTACLE_PROBES`]; returns the number
+/// written to `out`. Without them a box grows through its hidden contact face into the can beside it (2.4 cm on
+/// the clutter scene).
+fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, Vec3), out: &mut [Vec3]) -> usize {
+    let inside = |c: &Vec3, lo: &Vec3, hi: &Vec3, margin: f32| {
+        c.iter().zip(lo.iter().zip(hi)).all(|(x, (lo, hi))| *x >= lo - margin && *x <= hi + margin)
+    };
+    let largest = other.scales.iter().fold(0.0f32, |m, &a| m.max(a));
+    if inside(&other.centre, &object.bbox_min, &object.bbox_max, 0.0)
+        || !inside(&other.centre, &object.bbox_min, &object.bbox_max, largest + FOREIGN_REACH)
+    {
+        return 0;
+    }
+    let shrunk = Superquadric { scales: other.scales.map(|a| (a - 0.005).max(0.8 * a)), ..*other };
+    let spacing = (shrunk.scales.iter().fold(0.0f32, |m, &a| m.max(a)) / 3.0).max(0.01);
+    let mut slots = out.iter_mut().take(OBSTACLE_PROBES);
+    let mut n = 0;
+    MapSq { sq: shrunk, instance: 0, class: 0, score: 0.0, track: 0 }.for_each_surface_sample_spaced(spacing, |p| {
+        if inside(&p, &reach.0, &reach.1, 0.0) {
+            if let Some(slot) = slots.next() {
+                *slot = p;
+                n += 1;
+            }
+        }
+    });
+    n
+}
