@@ -9,27 +9,38 @@
 //! **Initialisation.** The object's PCA frame (e0, e1, e2) gives three right-handed candidate frames, one per
 //! choice of the SQ's z axis (cyclic permutations); in each, the 5th and 95th percentiles of the sampled points
 //! give the initial centre and half-axes, with (ε1, ε2) box-like (0.3, 0.3), cylinder-like (0.3, 1) or an
-//! ellipsoid (1, 1), each plain and deepened along the line of sight: 18 guesses, each screened with 8 LM
-//! iterations (MMQ: the 6 ellipsoids, ε held at 1). **Levenberg–Marquardt** (equation 13) on
-//! `lm_samples` points, at most `lm_max_iters` iterations: forward-difference Jacobian accumulated point by point
-//! into JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹), λ ÷ 3 on success and × 10 on failure,
-//! parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale ≥ 0.005 m) after each step. The candidate
-//! with the lowest objective wins.
+//! ellipsoid (1, 1), each plain and deepened along the line of sight: 18 guesses (MMQ: the 6 ellipsoids, ε held
+//! at 1). **Screening** by successive halving on 50 of the fit points: every guess gets 4 LM iterations, the
+//! best 9 continue to 8; the screening residual is the exact radial distance ‖l‖(G − 1)/G with its analytic
+//! Jacobian (`Superquadric::shape_gradient`), so no extra powers are taken. **Finishing**: the best candidates
+//! in cost order, up to three, run `lm_max_iters` **Levenberg–Marquardt** iterations (equation 13) on all
+//! `lm_samples` points with the first-order metric distance (G − 1)/‖∇G‖ and a forward-difference shape
+//! Jacobian, accumulated point by point into JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹),
+//! λ ÷ 3 on success and × 10 on failure, parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale
+//! ≥ 0.005 m) after each step; the first acceptable one wins. Powers go through [`fastmath::pow`].
 //!
 //! **Size prior.** Only the camera-facing half of an object is seen, so a superquadric that extends further
 //! away from the camera explains the points just as well. LM therefore minimises Σ e² + w · Σ a_k²
 //! (`sq_scale_prior`, w = 10⁻⁴ m⁻²: a few per cent of a typical data term), which picks the most compact
 //! shape that still passes through the observed surface; E_sq itself is reported and thresholded without it.
 //!
-//! **Extent constraint.** Seen side-on, an object's extent is its silhouette: the LM objective also penalises
-//! (weight N per m²) every end of an axis that reaches more than 2 cm beyond the fit points, except the far end
-//! of an axis that looks away from the camera, which may extend by |axis · view| · 2 · max a (the unseen back).
-//! Without it a box seen on one face grew freely along that face (the data cost is flat there).
+//! **Extent constraint and hidden-depth prior.** Seen side-on, an object's extent is its silhouette: the LM
+//! objective also penalises (weight N per m²) every end of an axis that reaches more than 2 cm beyond the fit
+//! points, except the far end of an axis that looks away from the camera, which may extend by
+//! |axis · view| · 2 · (half the silhouette's width): an object is no deeper than it is wide.
+//!
+//! **Evidence** ([`Evidence`]): support half-spaces (the shape's lowest point along the normal, from the exact
+//! support function [`Superquadric::support`], stays 3 mm above) and free-space probes (points known empty or
+//! occupied by another object, which must lie outside the shape) are one-sided residuals of the same LM. The
+//! best two finished candidates get two more rounds in which their own camera-facing samples that lie in
+//! observed free space become probes ([`front_view`]).
 //!
 //! **Validity.** Finite parameters, within bounds, E_sq < `sq_max_error`, the trimmed RMS point distance (best
-//! 90 %) at most `sq_max_rms`, every half-axis at most 1.5 × half the diagonal of the support's 5–95 % box, the
-//! centre inside that box grown by half its diagonal, and the extent constraint with a looser margin (3 cm +
-//! 15 %). The screened guesses are finished in cost order, up to five, until one is acceptable.
+//! 90 %) at most `sq_max_rms` with at most 15 % of the points beyond twice that (one convex shape describes the
+//! instance), every half-axis at most 1.5 × half the diagonal of the support's 5–95 % box, the centre inside
+//! that box grown by half its diagonal, the extent constraint with a looser margin (3 cm + 15 %), no support
+//! undercut by more than 5 mm, at most 2 % of the probes more than 1 cm inside, and of the camera-facing
+//! surface at most 10 % in observed free space and at most 40 % hidden or outside the image.
 
 use bytemuck::Zeroable;
 
@@ -1077,7 +1088,7 @@ const FRONT_CANDIDATES: usize = 2;
 const FRONT_UNSEEN_MAX_SHARE: f32 = 0.4;
 /// LM iterations after each such round.
 const FRONT_ITERS: u32 = 4;
-/// Most probes the rounds of one [`finish`] add.
+/// Most probes the free-front rounds of one fit add (on the stack of the fit).
 pub const MAX_FRONT_PROBES: usize = 48;
 /// Most of a shape's camera-facing samples (share, of those with depth) that may lie in observed free space in
 /// an accepted fit (the probes alone are a sparse test; these samples are where the shape is).
