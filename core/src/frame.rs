@@ -150,6 +150,26 @@ impl<'a> Frame<'a> {
         }
     }
 
+    /// The nearest and the farthest raw depth within `range` (inclusive) in the square window of ±`radius`
+    /// pixels around pixel (u, v), clipped to the image; `None` when no pixel of the window has such a depth.
+    pub fn depth_window(&self, u: i32, v: i32, radius: i32, range: (u16, u16)) -> Option<(u16, u16)> {
+        let (w, h) = (self.width as i32, self.height as i32);
+        let (mut nearest, mut farthest) = (u16::MAX, 0u16);
+        let mut any = false;
+        for y in (v - radius).max(0)..=(v + radius).min(h - 1) {
+            let row = y as usize * w as usize;
+            for x in (u - radius).max(0)..=(u + radius).min(w - 1) {
+                let raw = self.depth.get(row + x as usize).copied().unwrap_or(0);
+                if (range.0..=range.1).contains(&raw) {
+                    nearest = nearest.min(raw);
+                    farthest = farthest.max(raw);
+                    any = true;
+                }
+            }
+        }
+        any.then_some((nearest, farthest))
+    }
+
     /// Depth in metres of a raw sample.
     #[inline]
     pub fn metres(&self, raw: u16) -> f32 {

@@ -891,10 +891,9 @@ const OBSTACLE_PROBES: usize = 48;
 /// (±1σ). Returns the number written to `out`.
 fn neighbour_gaussian_probes(gaussians: &[Gaussian], k: usize, reach: (Vec3, Vec3), out: &mut [Vec3]) -> usize {
     let (lo, hi) = reach;
-    let near = |m: Vec3| m.iter().zip(lo.iter().zip(&hi)).all(|(x, (lo, hi))| x >= lo && x <= hi);
     let mut slots = out.iter_mut();
     let mut n = 0;
-    for g in gaussians.iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize != k && near(g.mean)) {
+    for g in gaussians.iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize != k && within_box(g.mean, lo, hi, 0.0)) {
         let ([a0, a1, _], [s0, s1, _]) = (g.axes, g.sigmas());
         let ends = [
             g.mean,
@@ -918,12 +917,9 @@ fn neighbour_gaussian_probes(gaussians: &[Gaussian], k: usize, reach: (Vec3, Vec
 /// written to `out`. Without them a box grows through its hidden contact face into the can beside it (2.4 cm on
 /// the clutter scene).
 fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, Vec3), out: &mut [Vec3]) -> usize {
-    let inside = |c: &Vec3, lo: &Vec3, hi: &Vec3, margin: f32| {
-        c.iter().zip(lo.iter().zip(hi)).all(|(x, (lo, hi))| *x >= lo - margin && *x <= hi + margin)
-    };
     let largest = other.scales.iter().fold(0.0f32, |m, &a| m.max(a));
-    if inside(&other.centre, &object.bbox_min, &object.bbox_max, 0.0)
-        || !inside(&other.centre, &object.bbox_min, &object.bbox_max, largest + FOREIGN_REACH)
+    if within_box(other.centre, object.bbox_min, object.bbox_max, 0.0)
+        || !within_box(other.centre, object.bbox_min, object.bbox_max, largest + FOREIGN_REACH)
     {
         return 0;
     }
@@ -932,7 +928,7 @@ fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, V
     let mut slots = out.iter_mut().take(OBSTACLE_PROBES);
     let mut n = 0;
     MapSq { sq: shrunk, instance: 0, class: 0, score: 0.0, track: 0 }.for_each_surface_sample_spaced(spacing, |p| {
-        if inside(&p, &reach.0, &reach.1, 0.0) {
+        if within_box(p, reach.0, reach.1, 0.0) {
             if let Some(slot) = slots.next() {
                 *slot = p;
                 n += 1;
@@ -940,4 +936,9 @@ fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, V
         }
     });
     n
+}
+
+/// Whether `p` lies in the box [`lo` − `margin`, `hi` + `margin`] (metres, per axis).
+fn within_box(p: Vec3, lo: Vec3, hi: Vec3, margin: f32) -> bool {
+    p.iter().zip(lo.iter().zip(&hi)).all(|(x, (lo, hi))| *x >= lo - margin && *x <= hi + margin)
 }

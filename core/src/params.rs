@@ -84,6 +84,11 @@ impl Variant {
     }
 }
 
+/// Smallest depth tolerance, metres ([`Params::depth_tolerance`]).
+pub const DEPTH_TOLERANCE_MIN_M: f32 = 0.02;
+/// The depth tolerance is at least this many σ(z) of the sensor's axial noise ([`Params::depth_tolerance`]).
+pub const DEPTH_TOLERANCE_SIGMAS: f32 = 3.0;
+
 /// The mapping parameters Θ. `Params::default()` is the paper's setting.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -306,6 +311,13 @@ impl Params {
     pub fn depth_noise(&self, z: f32) -> f32 {
         let d = z - 0.4;
         self.sensor_noise_a + self.sensor_noise_b * d * d
+    }
+
+    /// The depth tolerance at observed depth `z`: max([`DEPTH_TOLERANCE_MIN_M`], [`DEPTH_TOLERANCE_SIGMAS`] ·
+    /// σ(z)), metres. A point nearer than the observed surface by more than this is in free space; the fit's
+    /// free-space probes and the map-level metrics of the shell use the same tolerance.
+    pub fn depth_tolerance(&self, z: f32) -> f32 {
+        (DEPTH_TOLERANCE_SIGMAS * self.depth_noise(z)).max(DEPTH_TOLERANCE_MIN_M)
     }
 
     /// Checks every range; [`crate::Mapper::new`] refuses parameters that fail.

@@ -386,21 +386,9 @@ pub fn free_space_probes(frame: &Frame<'_>, pixel_box: [u16; 4], z_near: f32, z_
         for i in 0..steps {
             let u = u0 + ((u1 - u0) * (2 * i + 1)) / (2 * steps);
             // Nearest valid depth within 2 px: a probe must be in front of every surface seen around its pixel.
-            let mut nearest = u16::MAX;
-            for y in (v - 2).max(0)..=(v + 2).min(h - 1) {
-                let row = y as usize * w as usize;
-                for x in (u - 2).max(0)..=(u + 2).min(w - 1) {
-                    let raw = frame.depth.get(row + x as usize).copied().unwrap_or(0);
-                    if (lo..=hi).contains(&raw) {
-                        nearest = nearest.min(raw);
-                    }
-                }
-            }
-            if nearest == u16::MAX {
-                continue;
-            }
+            let Some((nearest, _)) = frame.depth_window(u, v, 2, (lo, hi)) else { continue };
             let z_obs = frame.metres(nearest);
-            let free_until = z_obs - (3.0 * params.depth_noise(z_obs)).max(FREE_SPACE_MARGIN);
+            let free_until = z_obs - params.depth_tolerance(z_obs);
             for k in 0..PROBE_LEVELS {
                 let z = z_near + (z_far - z_near) * (2 * k + 1) as f32 / (2 * PROBE_LEVELS) as f32;
                 if z > free_until || z <= 0.0 {
@@ -414,9 +402,6 @@ pub fn free_space_probes(frame: &Frame<'_>, pixel_box: [u16; 4], z_near: f32, z_
     }
     n
 }
-
-/// Least distance in front of an observed surface at which a point counts as free space, metres.
-pub const FREE_SPACE_MARGIN: f32 = 0.02;
 
 /// The outcome of a fit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -1166,17 +1151,9 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
         if !(lo..=hi).contains(&own) {
             return Seen::Unknown;
         }
-        let (mut nearest, mut farthest) = (u16::MAX, 0u16);
-        for y in (v - 2).max(0)..=(v + 2).min(h - 1) {
-            for x in (u - 2).max(0)..=(u + 2).min(w - 1) {
-                let raw = frame.depth.get(y as usize * w as usize + x as usize).copied().unwrap_or(0);
-                if (lo..=hi).contains(&raw) {
-                    nearest = nearest.min(raw);
-                    farthest = farthest.max(raw);
-                }
-            }
-        }
-        let margin = |z: f32| (3.0 * params.depth_noise(z)).max(FREE_SPACE_MARGIN);
+        // The window holds the pixel's own valid depth, so it is never empty.
+        let Some((nearest, farthest)) = frame.depth_window(u, v, 2, (lo, hi)) else { return Seen::Unknown };
+        let margin = |z: f32| params.depth_tolerance(z);
         let (near, far) = (frame.metres(nearest), frame.metres(farthest));
         if p[2] < near - margin(near) {
             Seen::Free(u as f32, v as f32, near - margin(near))
@@ -1344,7 +1321,7 @@ mod gradient_tests {
             let sq = Superquadric { scales, eps, centre: [0.0; 3], rotation: linalg::IDENTITY };
             for l in points {
                 let analytic = sq.shape_gradient(l, &sq.powers(l));
-                for j in 0..5 {
+                for (j, &derivative) in analytic.iter().enumerate() {
                     let h = 1e-3f32;
                     let at = |delta: f32| {
                         let mut q = sq;
@@ -1356,8 +1333,8 @@ mod gradient_tests {
                         q.powers(l).g as f64
                     };
                     let numeric = (at(h) - at(-h)) / (2.0 * h as f64);
-                    let err = (analytic[j] as f64 - numeric).abs();
-                    assert!(err <= 2e-2 * numeric.abs().max(0.05), "{scales:?} {eps:?} at {l:?}, param {j}: analytic {} numeric {numeric}", analytic[j]);
+                    let err = (derivative as f64 - numeric).abs();
+                    assert!(err <= 2e-2 * numeric.abs().max(0.05), "{scales:?} {eps:?} at {l:?}, param {j}: analytic {derivative} numeric {numeric}");
                 }
             }
         }

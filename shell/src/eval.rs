@@ -146,10 +146,8 @@ pub const KIND_SQ: u8 = 1;
 /// [`PrimSamples::kind`] of a Gaussian.
 pub const KIND_GMM: u8 = 2;
 
-/// Smallest depth tolerance of the map-level metrics, metres.
-pub const DEPTH_TOLERANCE_MIN_M: f32 = 0.02;
-/// The depth tolerance is at least this many σ(z) of the sensor's axial noise.
-pub const DEPTH_TOLERANCE_SIGMAS: f32 = 3.0;
+/// The depth tolerance of the map-level metrics (the core's, [`Params::depth_tolerance`]).
+pub use m2smap_core::params::{DEPTH_TOLERANCE_MIN_M, DEPTH_TOLERANCE_SIGMAS};
 /// Half-size of the free-space window, pixels: a sample is in free space only when it lies in front of every
 /// valid depth of the (2r + 1)² window around its pixel.
 pub const FREE_SPACE_WINDOW_PX: usize = 2;
@@ -167,7 +165,7 @@ pub const ADHESION_MIN_SAMPLES: usize = 10;
 /// How far a sample may lie from an observed depth z (metres) and still agree with it: max(2 cm, 3σ(z)), with
 /// σ(z) the sensor's axial noise ([`Params::depth_noise`]), metres.
 pub fn depth_tolerance(params: &Params, z: f32) -> f32 {
-    DEPTH_TOLERANCE_MIN_M.max(DEPTH_TOLERANCE_SIGMAS * params.depth_noise(z))
+    params.depth_tolerance(z)
 }
 
 /// The surface samples of one map primitive.
@@ -239,17 +237,10 @@ impl Observation<'_> {
     /// The nearest valid observed depth in the window of ±[`FREE_SPACE_WINDOW_PX`] pixels around (u, v),
     /// metres; `None` when the window has no measurement.
     pub fn window_min_depth(&self, u: usize, v: usize) -> Option<f32> {
-        let r = FREE_SPACE_WINDOW_PX;
-        let (w, h) = (self.frame.width as usize, self.frame.height as usize);
-        let mut best: Option<f32> = None;
-        for y in v.saturating_sub(r)..(v + r + 1).min(h) {
-            for x in u.saturating_sub(r)..(u + r + 1).min(w) {
-                if let Some(z) = observed_depth(&self.frame, x, y) {
-                    best = Some(best.map_or(z, |b| b.min(z)));
-                }
-            }
-        }
-        best
+        // Every non-zero raw depth is a measurement here (no range filter), as for `observed_depth`.
+        let r = FREE_SPACE_WINDOW_PX as i32;
+        let (nearest, _) = self.frame.depth_window(u as i32, v as i32, r, (1, u16::MAX))?;
+        Some(self.frame.metres(nearest))
     }
 
     /// Whether a camera-frame sample (metres) is in free space: `Some(true)` when it lies in front of the

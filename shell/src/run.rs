@@ -525,6 +525,7 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         let map_metrics_ms = start.elapsed().as_secs_f64() * 1e3;
         let penetrations = truth.as_ref().map(|t| t.penetrations(false)).unwrap_or_default();
         let penetrations_sq = truth.as_ref().map(|t| t.penetrations(true)).unwrap_or_default();
+        let (penetration, penetration_sq) = (p95_and_max(&penetrations), p95_and_max(&penetrations_sq));
         let has_sq = behind.as_ref().filter(|b| !b.fractions.is_empty());
         let gmm = report.gmms as f64;
         let sq = params.variant.superquadrics().then_some(report.sqs as f64);
@@ -577,10 +578,10 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
             adhesion_map_sq: adhesion.map(|a| a.1 as f64),
             g2r_true_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_rmse_m),
             g2r_true_sq_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_sq_rmse_m),
-            penetration_p95_m: eval::percentile(&penetrations, 0.95),
-            penetration_max_m: penetrations.iter().copied().reduce(f64::max),
-            penetration_sq_p95_m: eval::percentile(&penetrations_sq, 0.95),
-            penetration_sq_max_m: penetrations_sq.iter().copied().reduce(f64::max),
+            penetration_p95_m: penetration.0,
+            penetration_max_m: penetration.1,
+            penetration_sq_p95_m: penetration_sq.0,
+            penetration_sq_max_m: penetration_sq.1,
             map_metrics_ms,
             penetrations,
             penetrations_sq,
@@ -610,12 +611,19 @@ fn pooled(records: &[FrameRecord], list: impl Fn(&FrameRecord) -> &[f64]) -> Vec
     records.iter().flat_map(|r| list(r).iter().copied()).collect()
 }
 
+/// The 95th percentile and the largest of `values` (penetrations, metres); `None` each without values.
+fn p95_and_max(values: &[f64]) -> (Option<f64>, Option<f64>) {
+    (eval::percentile(values, 0.95), values.iter().copied().reduce(f64::max))
+}
+
 fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> Summary {
     // Dropped and rejected frames have no map: they are counted, not averaged.
     let records: Vec<FrameRecord> =
         all.iter().filter(|r| r.rejected.is_none() && r.fault != Some(Fault::Dropped)).cloned().collect();
     let records = &records[..];
     let ms = median(&records.iter().map(|r| r.ms).collect::<Vec<_>>());
+    let penetration = p95_and_max(&pooled(records, |r| &r.penetrations));
+    let penetration_sq = p95_and_max(&pooled(records, |r| &r.penetrations_sq));
     let mut pools: BTreeMap<String, PoolRecord> = BTreeMap::new();
     for r in records {
         for (name, p) in &r.pools {
@@ -682,10 +690,10 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
         g2r_true_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_rmse_m)),
         g2r_true_sq_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_sq_rmse_m)),
         // Over every primitive of every frame, not a mean of per-frame values.
-        penetration_p95_m: eval::percentile(&pooled(records, |r| &r.penetrations), 0.95),
-        penetration_max_m: pooled(records, |r| &r.penetrations).into_iter().reduce(f64::max),
-        penetration_sq_p95_m: eval::percentile(&pooled(records, |r| &r.penetrations_sq), 0.95),
-        penetration_sq_max_m: pooled(records, |r| &r.penetrations_sq).into_iter().reduce(f64::max),
+        penetration_p95_m: penetration.0,
+        penetration_max_m: penetration.1,
+        penetration_sq_p95_m: penetration_sq.0,
+        penetration_sq_max_m: penetration_sq.1,
         map_metrics_ms_median: median(&records.iter().map(|r| r.map_metrics_ms).collect::<Vec<_>>()),
         pools,
         overflow_events: records.iter().map(|r| r.overflow_events).sum(),
