@@ -5,16 +5,8 @@ mod common;
 use std::fs;
 use std::path::Path;
 
-use common::{m2smap, shared_data};
+use common::{m2smap, run_ok, shared_data};
 use m2smap::dataset::{associate, parse_list, pose_at, read_list, read_trajectory, Dataset, Layout};
-
-fn run_ok(dataset: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec!["run", dataset.to_str().unwrap(), "--out", out.to_str().unwrap()];
-    args.extend_from_slice(extra);
-    let o = m2smap(&args);
-    assert!(o.status.success(), "m2smap run failed: {}", String::from_utf8_lossy(&o.stderr));
-    serde_json::from_str(&fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
-}
 
 fn frames_jsonl(out: &Path) -> Vec<serde_json::Value> {
     fs::read_to_string(out.join("frames.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()

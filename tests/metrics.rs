@@ -134,19 +134,7 @@ fn run_writes_the_map_level_metrics() {
     let data = dir.path().join("kitchen");
     let o = m2smap(&["synth", "--scene", "kitchen", "--frames", "2", "--seed", "1", "--out", data.to_str().unwrap()]);
     assert!(o.status.success(), "synth: {}", String::from_utf8_lossy(&o.stderr));
-    let keys = [
-        "free_space_violation",
-        "free_space_violation_sq",
-        "sq_behind_support",
-        "adhesion_map",
-        "adhesion_map_sq",
-        "g2r_true_rmse_m",
-        "g2r_true_sq_rmse_m",
-        "penetration_p95_m",
-        "penetration_max_m",
-        "penetration_sq_p95_m",
-        "penetration_sq_max_m",
-    ];
+    let keys = common::MAP_LEVEL_KEYS;
     // Fractions, RMS and percentiles over superquadrics are null without any; counts are 0.
     let sq_only = ["free_space_violation_sq", "g2r_true_sq_rmse_m", "penetration_sq_p95_m", "penetration_sq_max_m"];
     for (variant, sq_keys_null) in [("full", false), ("mmog", true)] {

@@ -147,19 +147,7 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
     // column is filled except the superquadric ones of the variants without superquadrics.
     let t4 = table(&md, "## Map-level metrics");
     assert_eq!(t4.len(), Variant::ALL.len() * 2);
-    let keys = [
-        "free_space_violation",
-        "free_space_violation_sq",
-        "sq_behind_support",
-        "adhesion_map",
-        "adhesion_map_sq",
-        "g2r_true_rmse_m",
-        "g2r_true_sq_rmse_m",
-        "penetration_p95_m",
-        "penetration_max_m",
-        "penetration_sq_p95_m",
-        "penetration_sq_max_m",
-    ];
+    let keys = common::MAP_LEVEL_KEYS;
     for name in ["desk", "tabletop"] {
         for v in Variant::ALL {
             let s = summary(&out, name, v);

@@ -23,3 +23,28 @@ pub fn shared_data(name: &str) -> Option<PathBuf> {
 pub fn m2smap(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_m2smap")).args(args).output().expect("run m2smap")
 }
+
+/// The map-level metric keys of `m2smap run`'s summary.json and frames.jsonl, in the column order of the eval
+/// report's "Map-level metrics" table.
+pub const MAP_LEVEL_KEYS: [&str; 11] = [
+    "free_space_violation",
+    "free_space_violation_sq",
+    "sq_behind_support",
+    "adhesion_map",
+    "adhesion_map_sq",
+    "g2r_true_rmse_m",
+    "g2r_true_sq_rmse_m",
+    "penetration_p95_m",
+    "penetration_max_m",
+    "penetration_sq_p95_m",
+    "penetration_sq_max_m",
+];
+
+/// Runs `m2smap run DATASET --out OUT EXTRA…`, asserts it succeeded and returns the summary.json it wrote.
+pub fn run_ok(dataset: &std::path::Path, out: &std::path::Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["run", dataset.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    let o = m2smap(&args);
+    assert!(o.status.success(), "m2smap run failed: {}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+}
