@@ -10,7 +10,7 @@ use crate::plane::PLANE_GRID;
 use crate::wire::{self, WireError};
 use crate::objects::{self, Object, SQ_ACCEPTED, SQ_NONE, SQ_REJECTED};
 use crate::superquadric::{self, Superquadric};
-use crate::track::{Track, Tracker};
+use crate::track::{self, Track, Tracker};
 use crate::plane::{self, Plane};
 use crate::error::ParamError;
 use crate::frame::Frame;
@@ -95,6 +95,9 @@ pub struct FrameReport {
     pub gmms: u32,
     /// Objects whose fit was rejected (they keep their Gaussians).
     pub sq_rejected: u32,
+    /// Objects without a track whose cold search was skipped because it was refused in the previous frame
+    /// (`track::Refusal`; they keep their Gaussians, not counted in `sq_rejected`).
+    pub sq_skipped: u32,
     /// Objects whose fit this frame was not acceptable but whose track state is consistent with the frame (the
     /// map shows the track's state; counted in `sqs`).
     pub sq_held: u32,
@@ -537,6 +540,7 @@ impl<'s> Mapper<'s> {
         let params = self.params;
         let Some(object) = self.objects.get(k).copied() else { return };
         let mut state = SQ_NONE;
+        let mut skipped = false;
         let mut sq = Superquadric::default_shape();
         let mut error = 0.0;
         let mut track = 0;
@@ -601,7 +605,18 @@ impl<'s> Mapper<'s> {
                 .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), &evidence, &params))
                 .filter(|f| f.accepted);
             state = SQ_REJECTED;
-            let fit = warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params));
+            // An object with no track that was refused in the previous frame skips its cold search on all but
+            // every `REFUSAL_RETRY_FRAMES`-th frame (see `track::Refusal`): it keeps its Gaussians meanwhile.
+            let untracked = own.is_none();
+            skipped = warm.is_none() && untracked && self.tracker.skips_search(track_centre, object.class, &params);
+            let fit = if skipped { None } else { warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params)) };
+            if untracked && !skipped {
+                if fit.is_some_and(|f| f.accepted) {
+                    self.tracker.forget_refusal(track_centre, object.class, &params);
+                } else {
+                    self.tracker.refuse(track_centre, object.class, &params);
+                }
+            }
             if let Some(fit) = fit {
                 error = fit.error;
                 if fit.accepted {
@@ -642,6 +657,7 @@ impl<'s> Mapper<'s> {
         }
         match state {
             SQ_ACCEPTED => self.report.sqs += 1,
+            SQ_REJECTED if skipped => self.report.sq_skipped += 1,
             SQ_REJECTED => self.report.sq_rejected += 1,
             _ => {}
         }
@@ -768,7 +784,7 @@ impl<'s> Mapper<'s> {
         wire::encode(buf, self.frames, |sink| self.for_each_primitive(|p| sink(p)))
     }
 
-    /// Writes the state that carries across frames (frame counter, superquadric tracks) into `buf` as a
+    /// Writes the state that carries across frames (frame counter, superquadric tracks, refused objects) into `buf` as a
     /// checksummed snapshot (see [`crate::snapshot`]); returns the bytes written.
     pub fn snapshot(&self, buf: &mut [u8]) -> Result<usize, WireError> {
         let state = snapshot::State {
@@ -776,21 +792,31 @@ impl<'s> Mapper<'s> {
             tracker_frame: self.tracker.frame,
             next_track_id: self.tracker.next_id,
         };
-        snapshot::write(buf, &state, self.tracker.tracks.as_slice())
+        snapshot::write(buf, &state, self.tracker.tracks.as_slice(), &self.tracker.refusals)
     }
 
     /// Restores a snapshot written by [`Mapper::snapshot`]. A corrupt, truncated, foreign or oversized snapshot
     /// is refused with its error and leaves the mapper fresh (no tracks, frame counter 0).
     pub fn restore(&mut self, bytes: &[u8]) -> Result<(), WireError> {
-        self.tracker.tracks.clear();
+        self.reset_tracks();
         self.tracker.next_id = 0;
         self.tracker.frame = 0;
         self.frames = 0;
         let capacity = self.tracker.tracks.usage().capacity;
         let tracks = &mut self.tracker.tracks;
-        let state = snapshot::read(bytes, capacity, |t| {
-            let _ = tracks.push(t);
-        });
+        let mut refusals = self.tracker.refusals.iter_mut();
+        let state = snapshot::read(
+            bytes,
+            capacity,
+            |t| {
+                let _ = tracks.push(t);
+            },
+            |r| {
+                if let Some(slot) = refusals.next() {
+                    *slot = r;
+                }
+            },
+        );
         match state {
             Ok(s) => {
                 self.frames = s.frames;
@@ -799,15 +825,16 @@ impl<'s> Mapper<'s> {
                 Ok(())
             }
             Err(e) => {
-                self.tracker.tracks.clear();
+                self.reset_tracks();
                 Err(e)
             }
         }
     }
 
-    /// Forgets every superquadric track (the next fits start cold).
+    /// Forgets every superquadric track and refusal (the next fits start cold).
     pub fn reset_tracks(&mut self) {
         self.tracker.tracks.clear();
+        self.tracker.refusals = [track::Refusal::default(); track::MAX_REFUSALS];
     }
 
     /// Streams the last frame's map through `out` using only `scratch` (≥ `wire::MAX_PRIMITIVE_BYTES`) as

@@ -719,7 +719,8 @@ struct Run {
 
 /// Normal equations JᵀJ δ = −Jᵀr being accumulated.
 struct Normal {
-    jtj: [[f32; SQ_PARAMS]; SQ_PARAMS],
+    /// JᵀJ, the 11 × 11 block used (the last lane is padding).
+    jtj: [[f32; NORMAL_LANES]; SQ_PARAMS],
     jtr: [f32; SQ_PARAMS],
 }
 
@@ -730,14 +731,23 @@ impl Normal {
         if !r.is_finite() || row.iter().any(|d| !d.is_finite()) {
             return;
         }
-        for (a, (ja, ga)) in self.jtj.iter_mut().zip(row.iter().zip(self.jtr.iter_mut())) {
+        // Twelve lanes (one zero) so the row updates vectorise; the same operations per entry as eleven.
+        let mut wide = [0.0f32; NORMAL_LANES];
+        for (x, d) in wide.iter_mut().zip(row) {
+            *x = *d;
+        }
+        for (a, (ja, ga)) in self.jtj.iter_mut().zip(wide.iter().zip(self.jtr.iter_mut())) {
             *ga += w * ja * r;
-            for (x, jb) in a.iter_mut().zip(row) {
-                *x += w * ja * jb;
+            let wa = w * ja;
+            for (x, jb) in a.iter_mut().zip(&wide) {
+                *x += wa * jb;
             }
         }
     }
 }
+
+/// Lanes of a row of the accumulated normal equations: the [`SQ_PARAMS`] parameters and one zero pad.
+const NORMAL_LANES: usize = 12;
 
 /// The models of one Jacobian: `base` and one model per shape parameter, perturbed by `steps`.
 struct Perturbed {
@@ -775,10 +785,10 @@ impl Perturbed {
             }
             return (Superquadric::radial_distance(l, pw), row);
         }
-        {
-            for ((d, m), h) in row.iter_mut().zip(&self.shape).zip(&self.steps).take(self.columns) {
-                *d = (m.distance_from(l, &m.powers_reusing(&self.base, l, pw)).0 - r) / h;
-            }
+        // Forward differences: the first-order k·∂G/∂θ ignores how k = 1/‖∇G‖ changes with the shape, and
+        // measured on the random-shape test it leaves 70 % of boxes beyond 1 cm / 10 % (23 % here).
+        for ((d, m), h) in row.iter_mut().zip(&self.shape).zip(&self.steps).take(self.columns) {
+            *d = (m.distance_from(l, &m.powers_reusing(&self.base, l, pw)).0 - r) / h;
         }
         let dt = linalg::scale(linalg::mat_vec(&self.base.rotation, n), -1.0);
         let dr = linalg::cross(n, l);
@@ -839,7 +849,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
             }
             *m = model(&t, r0);
         }
-        let mut normal = Normal { jtj: [[0.0f32; SQ_PARAMS]; SQ_PARAMS], jtr: [0.0f32; SQ_PARAMS] };
+        let mut normal = Normal { jtj: [[0.0f32; NORMAL_LANES]; SQ_PARAMS], jtr: [0.0f32; SQ_PARAMS] };
         let reuse = points.len() <= kept.len() && kept_model.is_some_and(|k| same_bits(&k, &base));
         for (&p, k) in points.iter().zip(kept.iter().chain(core::iter::repeat(&Powers::default()))) {
             let l = base.local(p);
@@ -920,7 +930,12 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         }
         let mut improved = false;
         for _attempt in 0..4 {
-            let mut a = normal.jtj;
+            let mut a = [[0.0f32; SQ_PARAMS]; SQ_PARAMS];
+            for (x, y) in a.iter_mut().zip(&normal.jtj) {
+                for (u, v) in x.iter_mut().zip(y) {
+                    *u = *v;
+                }
+            }
             for (k, row) in a.iter_mut().enumerate() {
                 if let Some(d) = row.get_mut(k) {
                     *d += lambda * (*d + 1e-9);

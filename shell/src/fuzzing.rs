@@ -13,7 +13,7 @@ pub fn wire_decode(data: &[u8]) {
     if m2smap_core::wire::decode(data, |p| p.for_each_sample(|_| n += 1)).is_ok() {
         assert!(n < 10_000_000);
     }
-    let _ = m2smap_core::snapshot::read(data, 64, |_| {});
+    let _ = m2smap_core::snapshot::read(data, 64, |_| {}, |_| {});
 }
 
 /// A little-endian reader over fuzz bytes that yields zeros once they run out.

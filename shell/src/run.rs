@@ -129,6 +129,10 @@ pub struct FrameRecord {
     pub residual_gaussians: u32,
     /// Objects whose superquadric fit was rejected.
     pub sq_rejected: u32,
+    /// Objects without a track whose cold search was skipped: refused in the previous frame (core `Refusal`).
+    pub sq_skipped: u32,
+    /// Objects shown by their track's state because this frame's fit was not acceptable.
+    pub sq_held: u32,
     /// Live superquadric tracks.
     pub tracks: u32,
     /// Tracks started in this frame.
@@ -557,6 +561,8 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
                 total: Some(report.planes as f64 + sq.unwrap_or(0.0) + gmm),
             },
             sq_rejected: report.sq_rejected,
+            sq_skipped: report.sq_skipped,
+            sq_held: report.sq_held,
             tracks: report.tracks,
             new_tracks: report.new_tracks,
             sq_jump_sum_deg: report.sq_jump_sum_deg as f64,
