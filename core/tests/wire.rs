@@ -204,3 +204,13 @@ fn a_small_buffer_is_an_error() {
         }
     });
 }
+
+/// The CRC-32 behind maps and snapshots is the standard one (IEEE 802.3, reflected): its check value for the
+/// ASCII bytes "123456789" is 0xCBF43926, and feeding the bytes in two parts gives the same CRC.
+#[test]
+fn crc32_has_the_standard_check_value() {
+    assert_eq!(wire::crc32(b"123456789"), 0xCBF4_3926);
+    assert_eq!(wire::crc32(b""), 0);
+    let (a, b) = b"123456789".split_at(4);
+    assert_eq!(!wire::crc32_update(wire::crc32_update(0xFFFF_FFFF, a), b), 0xCBF4_3926);
+}
