@@ -938,7 +938,8 @@ fn neighbour_gaussian_probes(gaussians: &[Gaussian], k: usize, reach: (Vec3, Vec
     n
 }
 
-/// Probes just inside another object's shape `other` (camera frame; its half-axes shrunk by 5 mm, at most 20 %)
+/// Probes on another object's shape `other` (camera frame; its surface: measured on the 20-frame shelf and clutter
+/// scenes, probes 5 mm inside it left 1.03 / 1.44 cm p95 penetration, on it 0.96 / 1.35 cm)
 /// within the box `reach` of `object`, unless `other`'s centre lies inside `object`'s support box (then it may be
 /// this object's own older state) or `other` is beyond reach. At most [`OBSTACLE_PROBES`]; returns the number
 /// written to `out`. Without them a box grows through its hidden contact face into the can beside it (2.4 cm on
@@ -950,11 +951,10 @@ fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, V
     {
         return 0;
     }
-    let shrunk = Superquadric { scales: other.scales.map(|a| (a - 0.005).max(0.8 * a)), ..*other };
-    let spacing = (shrunk.scales.iter().fold(0.0f32, |m, &a| m.max(a)) / 3.0).max(0.01);
+    let spacing = (largest / 3.0).max(0.01);
     let mut slots = out.iter_mut().take(OBSTACLE_PROBES);
     let mut n = 0;
-    MapSq { sq: shrunk, instance: 0, class: 0, score: 0.0, track: 0 }.for_each_surface_sample_spaced(spacing, |p| {
+    MapSq { sq: *other, instance: 0, class: 0, score: 0.0, track: 0 }.for_each_surface_sample_spaced(spacing, |p| {
         if within_box(p, reach.0, reach.1, 0.0) {
             if let Some(slot) = slots.next() {
                 *slot = p;
