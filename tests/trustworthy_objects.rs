@@ -65,7 +65,7 @@ fn ycbv_superquadrics_respect_free_space_and_the_table() {
     let Some(data) = shared_data("ycbv_0000") else { return };
     let dir = tempfile::tempdir().unwrap();
     let s = run_ok(&data, dir.path(), &[]);
-    // The target is 3 %; measured 6.7 % (the foam brick's fit leans to a diamond cross-section whose
+    // The target is 3 %; measured 6.4 % (the foam brick's fit leans to a diamond cross-section whose
     // corners stand out of its silhouette), 9.6 % before the free-front rounds.
     assert!(metric(&s, "free_space_violation_sq") <= 0.08, "free space {}", s["free_space_violation_sq"]);
     assert_eq!(metric(&s, "sq_behind_support"), 0.0, "superquadrics with > 2 % of their samples behind the table");
@@ -80,8 +80,9 @@ fn cabinet_keeps_a_steady_superquadric() {
     let dir = tempfile::tempdir().unwrap();
     let s = run_ok(&data, dir.path(), &[]);
     let sq = s["primitives"]["sq"].as_f64().unwrap();
-    // The target is 95 %; measured 84 %: on the other frames every candidate box puts 20–30 % of its
-    // camera-facing surface in observed free space beside the cabinet's right edge, and is refused.
+    // The target is 95 %; measured 86 %: on the other frames every candidate box puts 20–30 % of its
+    // camera-facing surface in observed free space (its back edge beyond the depth shadow beside the
+    // cabinet), and is refused.
     assert!(sq >= 0.8, "superquadric on {:.0} % of frames", 100.0 * sq);
     assert!(metric(&s, "j_sq_deg") <= 1.0, "J_sq {}", s["j_sq_deg"]);
     assert!(metric(&s, "free_space_violation_sq") <= 0.08, "free space {}", s["free_space_violation_sq"]);
