@@ -784,8 +784,8 @@ impl<'s> Mapper<'s> {
         wire::encode(buf, self.frames, |sink| self.for_each_primitive(|p| sink(p)))
     }
 
-    /// Writes the state that carries across frames (frame counter, superquadric tracks, refused objects) into `buf` as a
-    /// checksummed snapshot (see [`crate::snapshot`]); returns the bytes written.
+    /// Writes the state that carries across frames (frame counter, superquadric tracks, refused objects) into
+    /// `buf` as a checksummed snapshot (see [`crate::snapshot`]); returns the bytes written.
     pub fn snapshot(&self, buf: &mut [u8]) -> Result<usize, WireError> {
         let state = snapshot::State {
             frames: self.frames,

@@ -1,6 +1,6 @@
 //! Mapper state snapshots: the state that carries from frame to frame (the frame counter, the superquadric
-//! tracks and the recently refused objects) encoded into a caller buffer, so a robot can persist it across a reset or power loss and resume with
-//! exactly the maps it would have produced.
+//! tracks and the recently refused objects) encoded into a caller buffer, so a robot can persist it across a
+//! reset or power loss and resume with exactly the maps it would have produced.
 //!
 //! Layout: magic "M2S", version, then the state as postcard (f32 values bit-exact), then a CRC-32 of all that.
 //! Restoring validates everything first; a truncated, corrupted or foreign snapshot is refused.

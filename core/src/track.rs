@@ -120,8 +120,8 @@ pub fn smooth(previous: &Superquadric, aligned: &Superquadric, params: &Params) 
 /// Most refused objects the tracker remembers ([`Refusal`]).
 pub const MAX_REFUSALS: usize = 16;
 /// While an object stays refused, its cold superquadric search runs again every this many frames (the frames
-/// between keep its Gaussians, as a refused fit does; measured on redkitchen 0–299 with segmenter masks: every 2nd frame keeps 95 % of the superquadrics at 85 %
-/// of the time per frame, every 4th 85 % at 71 %).
+/// between keep its Gaussians, as a refused fit does; measured on redkitchen 0–299 with segmenter masks: every
+/// 2nd frame keeps 95 % of the superquadrics at 85 % of the time per frame, every 4th 85 % at 71 %).
 pub const REFUSAL_RETRY_FRAMES: u16 = 2;
 
 /// An object whose cold superquadric search found no acceptable shape, remembered so that the next frames do
