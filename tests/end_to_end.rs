@@ -266,7 +266,35 @@ fn bad_config_and_variant_are_refused() {
     let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
     assert!(o.status.success(), "a valid partial config is accepted");
     let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--variant", "best"]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("unknown variant"));
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success() && err.contains("unknown variant"), "{err}");
+    // The valid names are listed.
+    assert!(["full", "pmsao", "wsqa", "mmog", "mmp", "mmq"].iter().all(|v| err.contains(v)), "{err}");
+}
+
+/// Nothing to map is an error, not a summary of zeros: `--frames 0`, a dataset whose lists hold no frame, and a
+/// `--masks` folder without masks.
+#[test]
+fn nothing_to_map_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 1);
+    let out = dir.path().join("o");
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "0"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--frames 0"), "{}", String::from_utf8_lossy(&o.stderr));
+    let empty_masks = dir.path().join("no-masks");
+    fs::create_dir_all(&empty_masks).unwrap();
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--masks", empty_masks.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success() && err.contains("no-masks") && err.contains("no masks"), "{err}");
+    // A dataset whose rgb.txt and depth.txt list no frames.
+    let empty = dir.path().join("empty");
+    copy_dir(&scene, &empty);
+    for list in ["rgb.txt", "depth.txt"] {
+        fs::write(empty.join(list), "# timestamp filename\n").unwrap();
+    }
+    let o = m2smap(&["run", empty.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success() && err.contains("no frames"), "{err}");
 }
 
 fn copy_dir(from: &Path, to: &Path) {

@@ -23,6 +23,21 @@ fn ids_16x8() -> Vec<u16> {
 const JSON: &str = r#"{"instances": [{"id": 1, "label": "cabinet", "score": 0.9, "bbox": [2, 1, 5, 3]},
                                    {"id": 7, "label": "cup", "score": 0.6, "bbox": [15, 7, 15, 7]}]}"#;
 
+/// Mask producers often write more fields than the format needs (an instance's `area`, a file's `image_id`):
+/// they are ignored, the instances read the same.
+#[test]
+fn extra_fields_in_the_mask_json_are_ignored() {
+    let dir = tempfile::tempdir().unwrap();
+    write_ids(&dir.path().join("f.png"), 16, 8, &ids_16x8());
+    let json = r#"{"image_id": 12, "instances": [{"id": 1, "label": "cabinet", "score": 0.9, "bbox": [2, 1, 5, 3], "area": 12},
+                  {"id": 7, "label": "cup", "score": 0.6, "bbox": [15, 7, 15, 7], "area": 1}]}"#;
+    fs::write(dir.path().join("f.json"), json).unwrap();
+    let mut labels = LabelTable::default();
+    let m = read_frame_masks(dir.path(), "f", 16, 8, &mut labels).unwrap().unwrap();
+    assert_eq!(m.instances.len(), 2);
+    assert_eq!((m.id_at(3, 2), m.id_at(15, 7)), (1, 7));
+}
+
 #[test]
 fn reads_id_images_with_their_instance_lists() {
     let dir = tempfile::tempdir().unwrap();

@@ -209,7 +209,10 @@ fn execute(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Run { dataset, out, variant, frames, config, camera, profile, masks, segmenter, faults, fault_rate } => {
             let variant = match variant {
-                Some(name) => Some(Variant::from_name(&name).ok_or_else(|| anyhow!("unknown variant {name:?}"))?),
+                Some(name) => Some(Variant::from_name(&name).ok_or_else(|| {
+                    let names: Vec<&str> = Variant::ALL.iter().map(|v| v.name()).collect();
+                    anyhow!("unknown variant {name:?}; one of {}", names.join(", "))
+                })?),
                 None => None,
             };
             let opts = RunOptions {

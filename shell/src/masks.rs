@@ -79,8 +79,8 @@ impl FrameMasks {
     }
 }
 
+/// One instance of a mask JSON; other fields (e.g. `area`, which many mask producers write) are ignored.
 #[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
 struct JsonInstance {
     id: u16,
     label: String,

@@ -439,6 +439,12 @@ pub fn pool_records(report: &FrameReport) -> BTreeMap<String, PoolRecord> {
 /// Runs the mapper over a dataset and writes the outputs. Returns the summary.
 pub fn run(opts: &RunOptions) -> Result<Summary> {
     let dataset = Dataset::open(&opts.dataset, opts.camera.as_deref())?;
+    if dataset.frames.is_empty() {
+        return Err(anyhow!("{}: the dataset lists no frames", opts.dataset.display()));
+    }
+    if opts.frames == Some(0) {
+        return Err(anyhow!("--frames 0: nothing to map (give at least 1)"));
+    }
     let mut params = load_params(opts.config.as_deref())?;
     if let Some(v) = opts.variant {
         params.variant = v;
@@ -460,6 +466,16 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
     let masks_dir = mask_dir(&dataset.root, opts.masks.as_deref());
     if let Some(d) = masks_dir.as_ref().filter(|d| !d.is_dir()) {
         return Err(anyhow!("{}: mask folder does not exist", d.display()));
+    }
+    // A mask folder given on the command line must hold masks: an empty one would map without instances.
+    if let Some(d) = opts.masks.as_deref().filter(|d| d.is_dir()) {
+        let has_masks = fs::read_dir(d)
+            .with_context(|| format!("{}: cannot read", d.display()))?
+            .filter_map(|e| e.ok())
+            .any(|e| e.path().extension().is_some_and(|x| x == "png" || x == "txt"));
+        if !has_masks {
+            return Err(anyhow!("{}: mask folder holds no masks (.png + .json or .txt per frame)", d.display()));
+        }
     }
     let mut labels = LabelTable::default();
     // The geometric segmenter when asked for, and by default when the dataset has no masks (and the variant
