@@ -272,6 +272,26 @@ fn bad_config_and_variant_are_refused() {
     assert!(["full", "pmsao", "wsqa", "mmog", "mmp", "mmq"].iter().all(|v| err.contains(v)), "{err}");
 }
 
+/// A frame number beyond the dataset and an unknown camera name are refused before any mapping, with what is
+/// valid.
+#[test]
+fn out_of_range_frames_and_unknown_cameras_say_what_is_valid() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 3);
+    let ply = dir.path().join("f.ply");
+    let o = m2smap(&["export", scene.to_str().unwrap(), "--frame", "5", "--ply", ply.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success() && err.contains("--frame 5") && err.contains("has 3"), "{err}");
+    let png = dir.path().join("f.png");
+    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "3", "--out", png.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success() && err.contains("--frame 3") && err.contains("has 3"), "{err}");
+    let out = dir.path().join("o");
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--camera", "fr9"]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success() && err.contains("fr9") && err.contains("fr1, fr2, fr3"), "{err}");
+}
+
 /// Nothing to map is an error, not a summary of zeros: `--frames 0`, a dataset whose lists hold no frame, and a
 /// `--masks` folder without masks.
 #[test]

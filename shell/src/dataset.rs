@@ -357,6 +357,9 @@ impl Dataset {
         if let Some(c) = camera_override {
             camera = match Camera::preset(c) {
                 Some(p) => Some(p),
+                None if !Path::new(c).is_file() => bail!(
+                    "--camera {c:?}: neither a preset (fr1, fr2, fr3, freiburg1, freiburg2, freiburg3, 7scenes) nor a camera.json file"
+                ),
                 None => Some(Camera::from_json(Path::new(c))?),
             };
         }

@@ -279,6 +279,7 @@ fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Render { dataset, frame, out, masks, segmenter } => with_mapper(&dataset, masks, segmenter, |s| {
+            check_frame(s.dataset, frame)?;
             let m = map_frame(s.mapper, s.dataset, frame, s.source, s.labels, s.seg)?;
             let view = m.loaded.view(&s.dataset.camera);
             render::render_panels(s.mapper, &view, m.masks.as_ref(), &out)?;
@@ -287,7 +288,15 @@ fn execute(cli: Cli) -> Result<()> {
         }),
         Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter } => with_mapper(&dataset, masks, segmenter, |s| {
             let d = s.dataset;
+            if !all_frames {
+                check_frame(d, frame)?;
+            }
             let frames: Vec<usize> = if all_frames { (0..d.frames.len()).collect() } else { (0..=frame).collect() };
+            // --world needs the pose of every exported frame: known before any mapping.
+            let exported = |k: &usize| all_frames || *k == frame;
+            if let Some(k) = frames.iter().filter(|k| exported(k)).find(|&&k| world && d.frames.get(k).is_none_or(|f| f.pose.is_none())) {
+                anyhow::bail!("{}: --world needs camera poses, frame {k} has none", d.root.display());
+            }
             if all_frames {
                 std::fs::create_dir_all(&ply).with_context(|| format!("{}: cannot create", ply.display()))?;
             }
@@ -313,4 +322,13 @@ fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// `--frame` names a frame of the dataset: otherwise an error that says how many there are.
+fn check_frame(d: &m2smap::dataset::Dataset, frame: usize) -> Result<()> {
+    let n = d.frames.len();
+    if frame >= n {
+        anyhow::bail!("{}: --frame {frame} is beyond the last frame (the dataset has {n}, numbered 0–{})", d.root.display(), n.saturating_sub(1));
+    }
+    Ok(())
 }
