@@ -28,7 +28,12 @@ demo:
 ## Every test: the no_std core for the Cortex-M7 target, the firmware under QEMU (when available), then the
 ## workspace tests (release: the real-data runs are fast).
 test: core-nostd firmware-check
+	@rm -f target/skipped-tests.txt
 	$(CARGO) test --release --workspace
+	@if [ -s target/skipped-tests.txt ]; then \
+		echo "make test: $$(wc -l < target/skipped-tests.txt) tests SKIPPED their real-data part (../shared/data is absent):"; \
+		sort target/skipped-tests.txt | sed 's/^/  /'; \
+	else echo "make test: no test skipped"; fi
 
 ## The core must build for a bare-metal Cortex-M7 target: no std, no allocator.
 core-nostd:

@@ -272,6 +272,20 @@ fn bad_config_and_variant_are_refused() {
     assert!(["full", "pmsao", "wsqa", "mmog", "mmp", "mmq"].iter().all(|v| err.contains(v)), "{err}");
 }
 
+/// A test that cannot run its real-data part leaves its name and the reason in the skip list `make test`
+/// prints.
+#[test]
+fn a_skipped_test_is_recorded_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let list = dir.path().join("skipped.txt");
+    common::record_skip(&list, "../shared/data/nowhere not found");
+    common::record_skip(&list, "second reason");
+    let text = fs::read_to_string(&list).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 2, "{text}");
+    assert!(lines[0].starts_with("a_skipped_test_is_recorded_by_name: ") && lines[0].ends_with("nowhere not found"), "{text}");
+}
+
 /// A frame number beyond the dataset and an unknown camera name are refused before any mapping, with what is
 /// valid.
 #[test]

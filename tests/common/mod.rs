@@ -5,8 +5,15 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
-/// `../shared/data/<name>` beside the repository, or `None` (with a one-line note) when it is absent on a
-/// user's clone. Under CI (`CI=true`) a missing folder fails the test.
+/// The file where tests record what they skipped; `make test` prints it at the end (cargo hides a passing
+/// test's stderr, so a note there alone is never seen).
+pub fn skip_list() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/skipped-tests.txt")
+}
+
+/// `../shared/data/<name>` beside the repository, or `None` when it is absent on a user's clone: the calling
+/// test is then recorded in [`skip_list`] and returns early. Under CI (`CI=true`) a missing folder fails the
+/// test.
 pub fn shared_data(name: &str) -> Option<PathBuf> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(name);
     if path.is_dir() {
@@ -15,8 +22,21 @@ pub fn shared_data(name: &str) -> Option<PathBuf> {
     if std::env::var("CI").is_ok_and(|v| v == "true") {
         panic!("{} is missing, and CI always has ../shared/data", path.display());
     }
-    eprintln!("skipped: {} not found (../shared/data is only beside CI and developer checkouts)", path.display());
+    record_skip(&skip_list(), &format!("{} not found", path.display()));
     None
+}
+
+/// Appends "<test name>: <why>" to `list` (and says it on stderr).
+pub fn record_skip(list: &std::path::Path, why: &str) {
+    use std::io::Write;
+    let test = std::thread::current().name().unwrap_or("a test").to_owned();
+    eprintln!("skipped: {test}: {why}");
+    if let Some(dir) = list.parent() {
+        let _ = std::fs::create_dir_all(dir);
+    }
+    if let Ok(mut f) = std::fs::OpenOptions::new().create(true).append(true).open(list) {
+        let _ = writeln!(f, "{test}: {why}");
+    }
 }
 
 /// Runs the `m2smap` binary.
