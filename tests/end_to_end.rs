@@ -286,6 +286,31 @@ fn a_skipped_test_is_recorded_by_name() {
     assert!(lines[0].starts_with("a_skipped_test_is_recorded_by_name: ") && lines[0].ends_with("nowhere not found"), "{text}");
 }
 
+/// The camera model's origin is printed and recorded in summary.json, and a preset that contradicts the TUM
+/// sequence the folder names draws a warning.
+#[test]
+fn the_camera_used_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 1);
+    let out = dir.path().join("o");
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(o.status.success());
+    let s: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let camera = s["camera"].as_str().unwrap().to_owned();
+    assert!(camera.starts_with("camera.json: fx "), "{camera}");
+    assert!(String::from_utf8_lossy(&o.stdout).contains(&format!("camera: {camera}")));
+    // A folder named after fr1 mapped with --camera fr3.
+    let fr1 = dir.path().join("rgbd_dataset_freiburg1_desk");
+    copy_dir(&scene, &fr1);
+    fs::remove_file(fr1.join("camera.json")).unwrap();
+    let o = m2smap(&["run", fr1.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "1"]);
+    let s: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert!(o.status.success() && s["camera"].as_str().unwrap().starts_with("folder name (fr1)"), "{}", s["camera"]);
+    let o = m2smap(&["run", fr1.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "1", "--camera", "fr3"]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(err.contains("warning: --camera fr3") && err.contains("says fr1"), "{err}");
+}
+
 /// A frame number beyond the dataset and an unknown camera name are refused before any mapping, with what is
 /// valid.
 #[test]

@@ -50,11 +50,7 @@ impl Camera {
 
     /// The TUM preset named in a folder name (`fr1|fr2|fr3|freiburg1|freiburg2|freiburg3`).
     pub fn from_folder_name(path: &Path) -> Option<Camera> {
-        let name = path.file_name()?.to_string_lossy().to_lowercase();
-        ["freiburg1", "freiburg2", "freiburg3", "fr1", "fr2", "fr3"]
-            .iter()
-            .find(|k| name.contains(*k))
-            .and_then(|k| Camera::preset(k))
+        preset_in_name(path).and_then(Camera::preset)
     }
 
     /// Reads a `camera.json`.
@@ -302,8 +298,27 @@ pub struct Dataset {
     pub layout: Layout,
     /// Camera model.
     pub camera: Camera,
+    /// Where the camera model came from: `--camera <name or file>`, `camera.json`, `folder name (<preset>)` or
+    /// `camera-intrinsics.txt` (7-Scenes).
+    pub camera_source: String,
     /// Frames in time order.
     pub frames: Vec<FrameRef>,
+}
+
+/// The TUM sequence (`fr1`, `fr2`, `fr3`) that a folder's name names, if any (`freiburg1` reads as `fr1`).
+pub fn preset_in_name(root: &Path) -> Option<&'static str> {
+    let name = root.file_name()?.to_string_lossy().to_lowercase();
+    ["freiburg1", "freiburg2", "freiburg3", "fr1", "fr2", "fr3"].into_iter().find(|k| name.contains(*k)).and_then(preset_key)
+}
+
+/// The TUM preset a camera name stands for (`fr1`…`fr3`, also spelled `freiburg1`…`freiburg3`).
+pub fn preset_key(name: &str) -> Option<&'static str> {
+    match name {
+        "fr1" | "freiburg1" => Some("fr1"),
+        "fr2" | "freiburg2" => Some("fr2"),
+        "fr3" | "freiburg3" => Some("fr3"),
+        _ => None,
+    }
 }
 
 /// A decoded frame owned by the shell.
@@ -354,7 +369,14 @@ impl Dataset {
         } else {
             bail!("{}: neither a TUM folder (rgb.txt) nor a 7-Scenes folder (camera-intrinsics.txt)", root.display());
         };
+        let folder_preset = preset_in_name(root);
+        let mut camera_source = match layout {
+            Layout::SevenScenes => "camera-intrinsics.txt".to_owned(),
+            Layout::Tum if root.join("camera.json").is_file() => "camera.json".to_owned(),
+            Layout::Tum => folder_preset.map_or_else(String::new, |k| format!("folder name ({k})")),
+        };
         if let Some(c) = camera_override {
+            camera_source = format!("--camera {c}");
             camera = match Camera::preset(c) {
                 Some(p) => Some(p),
                 None if !Path::new(c).is_file() => bail!(
@@ -369,7 +391,7 @@ impl Dataset {
                 root.display()
             )
         })?;
-        Ok(Dataset { root: root.to_owned(), layout, camera, frames })
+        Ok(Dataset { root: root.to_owned(), layout, camera, camera_source, frames })
     }
 
     /// Decodes frame `i`, checking its size against the camera.

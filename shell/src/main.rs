@@ -257,6 +257,7 @@ fn execute(cli: Cli) -> Result<()> {
                 s.overflow_events,
                 out.join("summary.json").display()
             );
+            println!("camera: {}", s.camera);
             Ok(())
         }
         Command::Eval { datasets, out, frames } => {

@@ -223,6 +223,8 @@ pub struct Summary {
     pub variant: String,
     /// Capacity profile.
     pub profile: String,
+    /// Where the camera model came from (`Dataset::camera_source`), with its intrinsics.
+    pub camera: String,
     /// 1 / median core time per frame, Hz.
     pub hz: f64,
     /// Median core time per frame, ms.
@@ -445,6 +447,12 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
     if opts.frames == Some(0) {
         return Err(anyhow!("--frames 0: nothing to map (give at least 1)"));
     }
+    // A camera preset that contradicts the TUM sequence named by the folder is most likely a mistake.
+    if let (Some(given), Some(named)) = (opts.camera.as_deref().and_then(crate::dataset::preset_key), crate::dataset::preset_in_name(&opts.dataset)) {
+        if given != named {
+            eprintln!("warning: --camera {given} on {}, whose name says {named}", opts.dataset.display());
+        }
+    }
     let mut params = load_params(opts.config.as_deref())?;
     if let Some(v) = opts.variant {
         params.variant = v;
@@ -455,7 +463,12 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
         ProfileChoice::Mcu => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<McuStorage>())?,
         ProfileChoice::Tiny => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<TinyStorage>())?,
     };
-    let summary = summarise(&records, params.variant, opts.profile);
+    let mut summary = summarise(&records, params.variant, opts.profile);
+    let c = &dataset.camera;
+    summary.camera = format!(
+        "{}: fx {} fy {} cx {} cy {}, {}×{}, depth scale {}",
+        dataset.camera_source, c.fx, c.fy, c.cx, c.cy, c.width, c.height, c.depth_scale
+    );
     let path = opts.out.join("summary.json");
     fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n").with_context(|| format!("{}: cannot write", path.display()))?;
     Ok(summary)
@@ -667,6 +680,7 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
             ProfileChoice::Tiny => "tiny",
         }
         .to_owned(),
+        camera: String::new(),
         hz: if ms > 0.0 { 1e3 / ms } else { 0.0 },
         ms_per_frame_median: ms,
         points: mean(records.iter().map(|r| r.points as f64)),
