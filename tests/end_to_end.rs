@@ -311,6 +311,21 @@ fn the_camera_used_is_reported() {
     assert!(err.contains("warning: --camera fr3") && err.contains("says fr1"), "{err}");
 }
 
+/// A run whose pools overflow says so on stderr, naming the pools (the mcu and tiny profiles drop data on
+/// frames larger than they are sized for).
+#[test]
+fn pool_overflow_is_never_silent() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 1);
+    let out = dir.path().join("o");
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--profile", "tiny"]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("warning: the tiny profile's pools overflowed") && err.contains("voxels ("), "{err}");
+    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("overflowed"), "the host profile has room");
+}
+
 /// A frame number beyond the dataset and an unknown camera name are refused before any mapping, with what is
 /// valid.
 #[test]

@@ -258,6 +258,20 @@ fn execute(cli: Cli) -> Result<()> {
                 out.join("summary.json").display()
             );
             println!("camera: {}", s.camera);
+            // Overflow drops data (points, voxels, Gaussians …): say which pools, so it is never silent.
+            let full: Vec<String> = s
+                .pools
+                .iter()
+                .filter(|(_, p)| p.overflow_events > 0)
+                .map(|(name, p)| format!("{name} ({} events, capacity {})", p.overflow_events, p.capacity))
+                .collect();
+            if !full.is_empty() {
+                eprintln!(
+                    "warning: the {} profile's pools overflowed, data was dropped: {} (see memory_budget.md; --profile host has room)",
+                    s.profile,
+                    full.join(", ")
+                );
+            }
             Ok(())
         }
         Command::Eval { datasets, out, frames } => {
