@@ -326,6 +326,35 @@ fn pool_overflow_is_never_silent() {
     assert!(!String::from_utf8_lossy(&o.stderr).contains("overflowed"), "the host profile has room");
 }
 
+/// `export` and `render` map with the variant, parameters and camera they are given, like `run`.
+#[test]
+fn export_and_render_take_the_variant_config_and_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 1);
+    let vertices = |extra: &[&str]| {
+        let ply = dir.path().join("f.ply");
+        let mut args = vec!["export", scene.to_str().unwrap(), "--frame", "0", "--ply", ply.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let o = m2smap(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let text = fs::read(&ply).unwrap();
+        let header = String::from_utf8_lossy(&text[..200.min(text.len())]).into_owned();
+        header.lines().find_map(|l| l.strip_prefix("element vertex ").map(|n| n.trim().parse::<usize>().unwrap())).unwrap()
+    };
+    let full = vertices(&[]);
+    let mmog = vertices(&["--variant", "mmog"]);
+    assert_ne!(full, mmog, "a GMM-only map is sampled differently from the full map");
+    let cfg = dir.path().join("params.json");
+    fs::write(&cfg, "{\"depth_max\": -1.0}").unwrap();
+    let png = dir.path().join("f.png");
+    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("depth_max"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--variant", "best"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("one of full"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--camera", "fr3"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// A frame number beyond the dataset and an unknown camera name are refused before any mapping, with what is
 /// valid.
 #[test]

@@ -23,16 +23,44 @@ struct Session<'a, 'm> {
     seg: &'a mut SegmenterBuffers,
 }
 
-/// Opens a dataset and runs `f` with a host-profile mapper and the frame's mask source.
+/// How `render` and `export` map: the variant, parameters and camera, as `run` takes them.
+#[derive(clap::Args)]
+struct MappingArgs {
+    /// Method variant: full, pmsao, wsqa, mmog, mmp, mmq.
+    #[arg(long)]
+    variant: Option<String>,
+    /// JSON file of `Params` fields to override.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Camera: a TUM preset (fr1, fr2, fr3) or a camera.json file (default: guessed from the folder).
+    #[arg(long)]
+    camera: Option<String>,
+}
+
+/// The variant named on the command line, or an error listing the valid names.
+fn parse_variant(name: &str) -> Result<Variant> {
+    Variant::from_name(name).ok_or_else(|| {
+        let names: Vec<&str> = Variant::ALL.iter().map(|v| v.name()).collect();
+        anyhow!("unknown variant {name:?}; one of {}", names.join(", "))
+    })
+}
+
+/// Opens a dataset and runs `f` with a host-profile mapper (the variant, parameters and camera of `how`) and
+/// the frame's mask source.
 fn with_mapper(
     dataset: &std::path::Path,
+    how: &MappingArgs,
     masks: Option<PathBuf>,
     segmenter: Option<Segmenter>,
     f: impl FnOnce(Session<'_, '_>) -> Result<()>,
 ) -> Result<()> {
-    let d = Dataset::open(dataset, None)?;
+    let d = Dataset::open(dataset, how.camera.as_deref())?;
+    let mut params: Params = m2smap::run::load_params(how.config.as_deref())?;
+    if let Some(name) = how.variant.as_deref() {
+        params.variant = parse_variant(name)?;
+    }
     let mut storage = bytemuck::zeroed_box::<HostStorage>();
-    let mut mapper = Mapper::new(&mut *storage, Params::default()).map_err(|e| anyhow!("{e}"))?;
+    let mut mapper = Mapper::new(&mut *storage, params).map_err(|e| anyhow!("{e}"))?;
     let masks_dir = mask_dir(&d.root, masks.as_deref());
     let mut labels = LabelTable::default();
     let mut seg = SegmenterBuffers::default();
@@ -143,6 +171,8 @@ enum Command {
         /// Use the built-in depth-only segmenter (the default when the dataset has no masks).
         #[arg(long, value_enum)]
         segmenter: Option<Segmenter>,
+        #[command(flatten)]
+        how: MappingArgs,
     },
     /// Export the reconstructed map of frame K (or of every frame) as PLY point clouds.
     Export {
@@ -166,6 +196,8 @@ enum Command {
         /// Use the built-in depth-only segmenter (the default when the dataset has no masks).
         #[arg(long, value_enum)]
         segmenter: Option<Segmenter>,
+        #[command(flatten)]
+        how: MappingArgs,
     },
     /// Run every variant on every dataset; writes DIR/report.md (the paper's Tables I and II), the comparison
     /// figure DIR/comparison.svg and .png, and one run folder per dataset and variant.
@@ -209,10 +241,7 @@ fn execute(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Run { dataset, out, variant, frames, config, camera, profile, masks, segmenter, faults, fault_rate } => {
             let variant = match variant {
-                Some(name) => Some(Variant::from_name(&name).ok_or_else(|| {
-                    let names: Vec<&str> = Variant::ALL.iter().map(|v| v.name()).collect();
-                    anyhow!("unknown variant {name:?}; one of {}", names.join(", "))
-                })?),
+                Some(name) => Some(parse_variant(&name)?),
                 None => None,
             };
             let opts = RunOptions {
@@ -293,7 +322,7 @@ fn execute(cli: Cli) -> Result<()> {
             println!("wrote {frames} firmware frames and expected.txt to {}", out.display());
             Ok(())
         }
-        Command::Render { dataset, frame, out, masks, segmenter } => with_mapper(&dataset, masks, segmenter, |s| {
+        Command::Render { dataset, frame, out, masks, segmenter, how } => with_mapper(&dataset, &how, masks, segmenter, |s| {
             check_frame(s.dataset, frame)?;
             let m = map_frame(s.mapper, s.dataset, frame, s.source, s.labels, s.seg)?;
             let view = m.loaded.view(&s.dataset.camera);
@@ -301,7 +330,7 @@ fn execute(cli: Cli) -> Result<()> {
             println!("frame {frame}: {} planes, {} SQs, {} GMMs -> {}", m.report.planes, m.report.sqs, m.report.gmms, out.display());
             Ok(())
         }),
-        Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter } => with_mapper(&dataset, masks, segmenter, |s| {
+        Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter, how } => with_mapper(&dataset, &how, masks, segmenter, |s| {
             let d = s.dataset;
             if !all_frames {
                 check_frame(d, frame)?;
