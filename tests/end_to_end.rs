@@ -171,11 +171,16 @@ fn synthetic_scene_round_trips_through_the_command() {
 /// Runs `m2smap run` on a broken dataset: must fail with exactly one line naming `needle`.
 fn expect_error(dataset: &Path, needle: &str) {
     let out = tempfile::tempdir().unwrap();
-    let o = m2smap(&["run", dataset.to_str().unwrap(), "--out", out.path().to_str().unwrap()]);
+    expect_failure(&["run", dataset.to_str().unwrap(), "--out", out.path().to_str().unwrap()], &[needle]);
+}
+
+/// Runs `m2smap args` and checks it fails with one `error: ` line that contains every one of `needles`.
+fn expect_failure(args: &[&str], needles: &[&str]) {
+    let o = m2smap(args);
     let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "expected failure for {needle}");
+    assert!(!o.status.success(), "expected failure for {needles:?}");
     assert_eq!(stderr.trim_end().lines().count(), 1, "one line: {stderr}");
-    assert!(stderr.starts_with("error: ") && stderr.contains(needle), "{stderr:?} should name {needle}");
+    assert!(stderr.starts_with("error: ") && needles.iter().all(|n| stderr.contains(n)), "{stderr:?} should name {needles:?}");
     assert!(!stderr.contains("panicked"));
 }
 
@@ -265,11 +270,11 @@ fn bad_config_and_variant_are_refused() {
     fs::write(&cfg, "{\"voxel_resolution\": 0.05}").unwrap();
     let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
     assert!(o.status.success(), "a valid partial config is accepted");
-    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--variant", "best"]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(!o.status.success() && err.contains("unknown variant"), "{err}");
     // The valid names are listed.
-    assert!(["full", "pmsao", "wsqa", "mmog", "mmp", "mmq"].iter().all(|v| err.contains(v)), "{err}");
+    expect_failure(
+        &["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--variant", "best"],
+        &["unknown variant", "full", "pmsao", "wsqa", "mmog", "mmp", "mmq"],
+    );
 }
 
 /// A test that cannot run its real-data part leaves its name and the reason in the skip list `make test`
@@ -347,10 +352,8 @@ fn export_and_render_take_the_variant_config_and_camera() {
     let cfg = dir.path().join("params.json");
     fs::write(&cfg, "{\"depth_max\": -1.0}").unwrap();
     let png = dir.path().join("f.png");
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("depth_max"), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--variant", "best"]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("one of full"), "{}", String::from_utf8_lossy(&o.stderr));
+    expect_failure(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--config", cfg.to_str().unwrap()], &["depth_max"]);
+    expect_failure(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--variant", "best"], &["one of full"]);
     let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--camera", "fr3"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
@@ -362,17 +365,11 @@ fn out_of_range_frames_and_unknown_cameras_say_what_is_valid() {
     let dir = tempfile::tempdir().unwrap();
     let scene = synth_folder(dir.path(), 3);
     let ply = dir.path().join("f.ply");
-    let o = m2smap(&["export", scene.to_str().unwrap(), "--frame", "5", "--ply", ply.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(!o.status.success() && err.contains("--frame 5") && err.contains("has 3"), "{err}");
+    expect_failure(&["export", scene.to_str().unwrap(), "--frame", "5", "--ply", ply.to_str().unwrap()], &["--frame 5", "has 3"]);
     let png = dir.path().join("f.png");
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "3", "--out", png.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(!o.status.success() && err.contains("--frame 3") && err.contains("has 3"), "{err}");
+    expect_failure(&["render", scene.to_str().unwrap(), "--frame", "3", "--out", png.to_str().unwrap()], &["--frame 3", "has 3"]);
     let out = dir.path().join("o");
-    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--camera", "fr9"]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(!o.status.success() && err.contains("fr9") && err.contains("fr1, fr2, fr3"), "{err}");
+    expect_failure(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--camera", "fr9"], &["fr9", "fr1, fr2, fr3"]);
 }
 
 /// Nothing to map is an error, not a summary of zeros: `--frames 0`, a dataset whose lists hold no frame, and a
@@ -382,22 +379,17 @@ fn nothing_to_map_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let scene = synth_folder(dir.path(), 1);
     let out = dir.path().join("o");
-    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "0"]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--frames 0"), "{}", String::from_utf8_lossy(&o.stderr));
+    expect_failure(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "0"], &["--frames 0"]);
     let empty_masks = dir.path().join("no-masks");
     fs::create_dir_all(&empty_masks).unwrap();
-    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--masks", empty_masks.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(!o.status.success() && err.contains("no-masks") && err.contains("no masks"), "{err}");
+    expect_failure(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--masks", empty_masks.to_str().unwrap()], &["no-masks", "no masks"]);
     // A dataset whose rgb.txt and depth.txt list no frames.
     let empty = dir.path().join("empty");
     copy_dir(&scene, &empty);
     for list in ["rgb.txt", "depth.txt"] {
         fs::write(empty.join(list), "# timestamp filename\n").unwrap();
     }
-    let o = m2smap(&["run", empty.to_str().unwrap(), "--out", out.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(!o.status.success() && err.contains("no frames"), "{err}");
+    expect_failure(&["run", empty.to_str().unwrap(), "--out", out.to_str().unwrap()], &["no frames"]);
 }
 
 fn copy_dir(from: &Path, to: &Path) {
