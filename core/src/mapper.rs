@@ -598,9 +598,7 @@ impl<'s> Mapper<'s> {
             };
             // Warm start from the track this object would join (its state in the camera frame); the full
             // multi-guess search runs when there is none or the refined fit is not acceptable.
-            let warm = self
-                .tracker
-                .nearest(track_centre, object.class, &params)
+            let warm = own
                 .and_then(|i| self.tracker.tracks.get(i))
                 .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), &evidence, &params))
                 .filter(|f| f.accepted);
@@ -639,11 +637,9 @@ impl<'s> Mapper<'s> {
                 }
             }
             // No acceptable fit this frame: the object's track carries it when its state is consistent with
-            // this frame's points and evidence (the track is not updated).
+            // this frame's points and evidence (the track is not updated, so `own` still names it).
             if state != SQ_ACCEPTED {
-                let held = self
-                    .tracker
-                    .nearest(track_centre, object.class, &params)
+                let held = own
                     .and_then(|i| self.tracker.tracks.get(i))
                     .map(|t| (t.id, to_camera(&t.sq)))
                     .filter(|(_, q)| superquadric::is_consistent(q, points, &evidence, &params));

@@ -140,6 +140,19 @@ pub struct Refusal {
     pub last_frame: u32,
 }
 
+/// The index of the `(index, position)` candidate nearest to `centre` within `d_max` metres (the first of
+/// equally near ones), used for tracks (equation 15) and refusals alike.
+fn nearest_within(candidates: impl Iterator<Item = (usize, Vec3)>, centre: Vec3, d_max: f32) -> Option<usize> {
+    let mut best: Option<(f32, usize)> = None;
+    for (i, p) in candidates {
+        let d = linalg::norm(linalg::sub(p, centre));
+        if d <= d_max && best.is_none_or(|(bd, _)| d < bd) {
+            best = Some((d, i));
+        }
+    }
+    best.map(|(_, i)| i)
+}
+
 /// The track state of a frame's superquadrics.
 pub struct Tracker<'a> {
     /// The tracks.
@@ -195,17 +208,10 @@ impl<'a> Tracker<'a> {
     /// The remembered refusal of label `class` nearest to `centre` (tracking frame) within `d_max` that was
     /// refused in the previous frame and not yet in this one.
     fn recent_refusal(&self, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
-        let mut best: Option<(f32, usize)> = None;
-        for (i, r) in self.refusals.iter().enumerate() {
-            if r.count == 0 || r.class != class || r.last_frame.wrapping_add(1) != self.frame {
-                continue;
-            }
-            let d = linalg::norm(linalg::sub(r.centre, centre));
-            if d <= params.d_max && best.is_none_or(|(bd, _)| d < bd) {
-                best = Some((d, i));
-            }
-        }
-        best.map(|(_, i)| i)
+        let recent = self.refusals.iter().enumerate().filter(|(_, r)| {
+            r.count > 0 && r.class == class && r.last_frame.wrapping_add(1) == self.frame
+        });
+        nearest_within(recent.map(|(i, r)| (i, r.centre)), centre, params.d_max)
     }
 
     /// Whether the cold search for an object at `centre` (tracking frame) with label `class` is skipped this
@@ -273,17 +279,8 @@ impl<'a> Tracker<'a> {
     /// Equations 14–15: the nearest track of label `class` within `d_max` of `centre` that has not been
     /// updated in this frame.
     pub fn nearest(&self, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
-        let mut best: Option<(f32, usize)> = None;
-        for (i, t) in self.tracks.as_slice().iter().enumerate() {
-            if t.class != class || t.last_frame == self.frame {
-                continue;
-            }
-            let d = linalg::norm(linalg::sub(t.sq.centre, centre));
-            if d <= params.d_max && best.is_none_or(|(bd, _)| d < bd) {
-                best = Some((d, i));
-            }
-        }
-        best.map(|(_, i)| i)
+        let open = self.tracks.as_slice().iter().enumerate().filter(|(_, t)| t.class == class && t.last_frame != self.frame);
+        nearest_within(open.map(|(i, t)| (i, t.sq.centre)), centre, params.d_max)
     }
 
     /// Associates, aligns and smooths one measurement (`sq` in the tracking frame, label `class`).
