@@ -39,18 +39,13 @@ impl Camera {
     /// A TUM preset by name: `fr1`, `fr2`, `fr3` (or `freiburg1..3`).
     pub fn preset(name: &str) -> Option<Camera> {
         let tum = |fx, fy, cx, cy| Camera { fx, fy, cx, cy, width: 640, height: 480, depth_scale: 5000.0 };
-        match name {
-            "fr1" | "freiburg1" => Some(tum(517.3, 516.5, 318.6, 255.3)),
-            "fr2" | "freiburg2" => Some(tum(520.9, 521.0, 325.1, 249.7)),
-            "fr3" | "freiburg3" => Some(tum(535.4, 539.2, 320.1, 247.6)),
+        match preset_key(name).unwrap_or(name) {
+            "fr1" => Some(tum(517.3, 516.5, 318.6, 255.3)),
+            "fr2" => Some(tum(520.9, 521.0, 325.1, 249.7)),
+            "fr3" => Some(tum(535.4, 539.2, 320.1, 247.6)),
             "7scenes" => Some(Camera { fx: 585.0, fy: 585.0, cx: 320.0, cy: 240.0, width: 640, height: 480, depth_scale: 1000.0 }),
             _ => None,
         }
-    }
-
-    /// The TUM preset named in a folder name (`fr1|fr2|fr3|freiburg1|freiburg2|freiburg3`).
-    pub fn from_folder_name(path: &Path) -> Option<Camera> {
-        preset_in_name(path).and_then(Camera::preset)
     }
 
     /// Reads a `camera.json`.
@@ -369,23 +364,17 @@ impl Dataset {
         } else {
             bail!("{}: neither a TUM folder (rgb.txt) nor a 7-Scenes folder (camera-intrinsics.txt)", root.display());
         };
-        let folder_preset = preset_in_name(root);
-        let mut camera_source = match layout {
-            Layout::SevenScenes => "camera-intrinsics.txt".to_owned(),
-            Layout::Tum if root.join("camera.json").is_file() => "camera.json".to_owned(),
-            Layout::Tum => folder_preset.map_or_else(String::new, |k| format!("folder name ({k})")),
-        };
         if let Some(c) = camera_override {
-            camera_source = format!("--camera {c}");
-            camera = match Camera::preset(c) {
-                Some(p) => Some(p),
+            let given = match Camera::preset(c) {
+                Some(p) => p,
                 None if !Path::new(c).is_file() => bail!(
                     "--camera {c:?}: neither a preset (fr1, fr2, fr3, freiburg1, freiburg2, freiburg3, 7scenes) nor a camera.json file"
                 ),
-                None => Some(Camera::from_json(Path::new(c))?),
+                None => Camera::from_json(Path::new(c))?,
             };
+            camera = Some((given, format!("--camera {c}")));
         }
-        let camera = camera.ok_or_else(|| {
+        let (camera, camera_source) = camera.ok_or_else(|| {
             anyhow!(
                 "{}: unknown camera: name the folder fr1/fr2/fr3, add camera.json, or pass --camera",
                 root.display()
@@ -421,7 +410,9 @@ impl Dataset {
     }
 }
 
-fn open_tum(root: &Path) -> Result<(Option<Camera>, Vec<FrameRef>)> {
+/// A TUM folder's frames and camera with where the camera came from (`camera.json`, else the preset its name
+/// names; `None` when neither).
+fn open_tum(root: &Path) -> Result<(Option<(Camera, String)>, Vec<FrameRef>)> {
     let rgb = read_list(&root.join("rgb.txt"), 1)?;
     let depth = read_list(&root.join("depth.txt"), 1)?;
     let pairs = associate(
@@ -447,11 +438,16 @@ fn open_tum(root: &Path) -> Result<(Option<Camera>, Vec<FrameRef>)> {
         })
         .collect();
     let json = root.join("camera.json");
-    let camera = if json.is_file() { Some(Camera::from_json(&json)?) } else { Camera::from_folder_name(root) };
+    let camera = if json.is_file() {
+        Some((Camera::from_json(&json)?, "camera.json".to_owned()))
+    } else {
+        preset_in_name(root).and_then(|k| Some((Camera::preset(k)?, format!("folder name ({k})"))))
+    };
     Ok((camera, frames))
 }
 
-fn open_seven_scenes(root: &Path) -> Result<(Option<Camera>, Vec<FrameRef>)> {
+/// A 7-Scenes folder's frames and camera (from `camera-intrinsics.txt`).
+fn open_seven_scenes(root: &Path) -> Result<(Option<(Camera, String)>, Vec<FrameRef>)> {
     let k_path = root.join("camera-intrinsics.txt");
     let text = fs::read_to_string(&k_path).with_context(|| format!("{}: cannot read", k_path.display()))?;
     let camera = parse_intrinsics(&text).map_err(|e| anyhow!("{}: {e}", k_path.display()))?;
@@ -474,7 +470,7 @@ fn open_seven_scenes(root: &Path) -> Result<(Option<Camera>, Vec<FrameRef>)> {
         });
     }
     frames.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
-    Ok((Some(camera), frames))
+    Ok((Some((camera, "camera-intrinsics.txt".to_owned())), frames))
 }
 
 fn read_pose_matrix(path: &Path) -> Result<Pose> {
