@@ -5,14 +5,14 @@ mod common;
 use std::fs;
 use std::path::Path;
 
-use common::{m2smap, run_ok, shared_data};
+use common::{expect_failure, m2smap, run_ok, shared_data};
 use m2smap::dataset::{associate, parse_list, pose_at, read_list, read_trajectory, Dataset, Layout};
 
 fn frames_jsonl(out: &Path) -> Vec<serde_json::Value> {
     fs::read_to_string(out.join("frames.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()
 }
 
-/// The keys SPEC §6 names for summary.json.
+/// The summary.json keys that docs/formats.md names as the stable core of the file.
 const SUMMARY_KEYS: [&str; 15] = [
     "frames", "variant", "hz", "ms_per_frame_median", "primitives", "payload_bytes", "g2r_rmse_m", "r2g_rmse_m",
     "r_c", "a_s", "n_adh", "j_sq_deg", "pools", "overflow_events", "profile",
@@ -172,16 +172,6 @@ fn synthetic_scene_round_trips_through_the_command() {
 fn expect_error(dataset: &Path, needle: &str) {
     let out = tempfile::tempdir().unwrap();
     expect_failure(&["run", dataset.to_str().unwrap(), "--out", out.path().to_str().unwrap()], &[needle]);
-}
-
-/// Runs `m2smap args` and checks it fails with one `error: ` line that contains every one of `needles`.
-fn expect_failure(args: &[&str], needles: &[&str]) {
-    let o = m2smap(args);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "expected failure for {needles:?}");
-    assert_eq!(stderr.trim_end().lines().count(), 1, "one line: {stderr}");
-    assert!(stderr.starts_with("error: ") && needles.iter().all(|n| stderr.contains(n)), "{stderr:?} should name {needles:?}");
-    assert!(!stderr.contains("panicked"));
 }
 
 #[test]

@@ -12,6 +12,7 @@ pub mod faults;
 pub mod firmware;
 pub mod fuzzing;
 pub mod masks;
+pub mod raycast;
 pub mod render;
 pub mod report;
 pub mod run;

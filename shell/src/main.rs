@@ -37,6 +37,17 @@ struct MappingArgs {
     camera: Option<String>,
 }
 
+/// Where `render` looks from.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ViewChoice {
+    /// The frame's camera (four panels).
+    Camera,
+    /// Around the map's objects.
+    Orbit,
+    /// From above.
+    Top,
+}
+
 /// The variant named on the command line, or an error listing the valid names.
 fn parse_variant(name: &str) -> Result<Variant> {
     Variant::from_name(name).ok_or_else(|| {
@@ -155,7 +166,8 @@ enum Command {
         #[arg(long, value_name = "S", default_value_t = 0.0)]
         mask_score_noise: f64,
     },
-    /// Draw the four-panel picture of frame K (masks, Gaussians, fused clusters, map) into a PNG.
+    /// Draw the four-panel picture of frame K (masks, Gaussians, fused clusters, map) into a PNG, or with
+    /// `--view orbit|top` the frame's map from around or above its objects.
     Render {
         /// Dataset folder.
         dataset: PathBuf,
@@ -171,6 +183,14 @@ enum Command {
         /// Use the built-in depth-only segmenter (the default when the dataset has no masks).
         #[arg(long, value_enum)]
         segmenter: Option<Segmenter>,
+        /// camera: the four panels seen from the frame's camera; orbit: the map from four sides of its
+        /// objects (45°, 135°, 225°, 315° about the up axis), or one side with --angle; top: from above.
+        #[arg(long, value_enum, default_value = "camera")]
+        view: ViewChoice,
+        /// With --view orbit: one view at this azimuth, degrees from the camera's side (counter-clockwise
+        /// seen from above).
+        #[arg(long, requires = "view")]
+        angle: Option<f32>,
         #[command(flatten)]
         how: MappingArgs,
     },
@@ -322,11 +342,23 @@ fn execute(cli: Cli) -> Result<()> {
             println!("wrote {frames} firmware frames and expected.txt to {}", out.display());
             Ok(())
         }
-        Command::Render { dataset, frame, out, masks, segmenter, how } => with_mapper(&dataset, &how, masks, segmenter, |s| {
+        Command::Render { dataset, frame, out, masks, segmenter, view, angle, how } => with_mapper(&dataset, &how, masks, segmenter, |s| {
             check_frame(s.dataset, frame)?;
+            let map_view = match (view, angle) {
+                (ViewChoice::Camera, None) => None,
+                (ViewChoice::Orbit, None) => Some(render::MapView::Orbit),
+                (ViewChoice::Orbit, Some(a)) if a.is_finite() => Some(render::MapView::OrbitAt(a)),
+                (ViewChoice::Top, None) => Some(render::MapView::Top),
+                (_, Some(a)) => anyhow::bail!("--angle {a} goes with --view orbit and must be a number of degrees"),
+            };
             let m = map_frame(s.mapper, s.dataset, frame, s.source, s.labels, s.seg)?;
-            let view = m.loaded.view(&s.dataset.camera);
-            render::render_panels(s.mapper, &view, m.masks.as_ref(), &out)?;
+            let fv = m.loaded.view(&s.dataset.camera);
+            match map_view {
+                None => render::render_panels(s.mapper, &fv, m.masks.as_ref(), &out)?,
+                Some(v) => {
+                    render::render_views(s.mapper, &fv, v, &out)?;
+                }
+            }
             println!("frame {frame}: {} planes, {} SQs, {} GMMs -> {}", m.report.planes, m.report.sqs, m.report.gmms, out.display());
             Ok(())
         }),

@@ -1,6 +1,7 @@
 //! Pictures of a mapped frame, like the paper's Fig. 1: (a) the colour image with its instance masks, (b) the
 //! supervoxel clusters and refined Gaussians, (c) the clusters after fusion, (d) the final map of planes,
-//! superquadrics and Gaussians drawn from the camera by a small point-splatting renderer with a depth buffer.
+//! superquadrics and Gaussians ray-cast as solid shaded shapes from the camera ([`crate::raycast`]); and the map
+//! alone from other viewpoints (`--view orbit|top`) to see the sides the camera did not.
 
 use std::path::Path;
 
@@ -11,11 +12,19 @@ use m2smap_core::supervoxel::is_assigned;
 use m2smap_core::{Frame, Mapper};
 
 use crate::masks::FrameMasks;
+use crate::raycast::{self, Drawable, Framing, View, Viewpoint};
 
-/// Colour of a primitive kind in panel (d) and the legend.
-pub const PLANE_COLOUR: [u8; 3] = [110, 140, 200];
-/// Residual Gaussians in panel (d).
-pub const GMM_COLOUR: [u8; 3] = [235, 150, 60];
+/// Colour of bounded planes in the map pictures and the legend (tinted by cluster).
+pub const PLANE_COLOUR: [u8; 3] = [110, 140, 215];
+/// Colour of object superquadrics (tinted by instance).
+pub const SQ_COLOUR: [u8; 3] = [80, 205, 105];
+/// Colour of Gaussians (tinted by instance when they carry one).
+pub const GMM_COLOUR: [u8; 3] = [240, 150, 55];
+/// How much of an instance's (or plane cluster's) own colour tints its primitive's kind colour: at 0.25 an SQ stays
+/// green-dominant and a Gaussian red-dominant whatever the instance colour.
+pub const TINT: f32 = 0.25;
+/// Background of the map pictures where no primitive is hit.
+pub const BACKGROUND: [u8; 3] = [0, 0, 0];
 
 /// A saturated, well-spread colour for an id (hue from a hash, high saturation and value).
 pub fn id_colour(id: u32) -> [u8; 3] {
@@ -38,6 +47,30 @@ pub fn id_colour(id: u32) -> [u8; 3] {
 
 fn blend(a: [u8; 3], b: [u8; 3], t: f32) -> [u8; 3] {
     [0, 1, 2].map(|k| (a[k] as f32 * (1.0 - t) + b[k] as f32 * t) as u8)
+}
+
+/// Rounds of [`fill_gaps`]: a gap up to twice this wide closes.
+const FILL_ROUNDS: usize = 3;
+
+/// Gives a pixel with valid depth whose point fell into a voxel the mapper did not keep (it voxelises a sample
+/// of the pixels, so many voxels hold no sampled point) the label of a labelled 4-neighbour, for
+/// [`FILL_ROUNDS`] rounds: panels (b) and (c) then show the clusters, not the sampling pattern.
+fn fill_gaps(labels: &mut [(u16, u16)], frame: &Frame<'_>, lo: u16, hi: u16, w: u32, h: u32) {
+    let (w, h) = (w as usize, h as usize);
+    for _ in 0..FILL_ROUNDS {
+        let before = labels.to_vec();
+        for (i, label) in labels.iter_mut().enumerate() {
+            let valid = frame.depth.get(i).is_some_and(|&r| r >= lo && r <= hi);
+            if label.0 != u16::MAX || !valid {
+                continue;
+            }
+            let (x, y) = (i % w, i / w);
+            let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
+            if let Some(&l) = neighbours.into_iter().flatten().filter_map(|j| before.get(j)).find(|l| l.0 != u16::MAX) {
+                *label = l;
+            }
+        }
+    }
 }
 
 /// Draws the four panels of the frame the mapper last processed into a 2×2 PNG at `out`.
@@ -63,6 +96,7 @@ pub fn render_panels(mapper: &Mapper<'_>, frame: &Frame<'_>, masks: Option<&Fram
             labels[i] = (vx.gaussian, vx.supervoxel);
         }
     }
+    fill_gaps(&mut labels, frame, lo, hi, w, h);
     for y in 0..h {
         for x in 0..w {
             let i = (y * w + x) as usize;
@@ -74,7 +108,9 @@ pub fn render_panels(mapper: &Mapper<'_>, frame: &Frame<'_>, masks: Option<&Fram
             let (g, sv) = labels[i];
             let grey = blend(rgb, [0, 0, 0], 0.7);
             // (b) Gaussians, with supervoxel borders in black.
-            let border = (x + 1 < w && labels[i + 1].1 != sv) || (y + 1 < h && labels[i + w as usize].1 != sv);
+            // A border only between two labelled pixels of different supervoxels.
+            let differs = |j: usize| labels.get(j).is_some_and(|&(gj, svj)| gj != u16::MAX && svj != sv);
+            let border = (x + 1 < w && differs(i + 1)) || (y + 1 < h && differs(i + w as usize));
             let b = if g == u16::MAX {
                 grey
             } else if border {
@@ -88,52 +124,105 @@ pub fn render_panels(mapper: &Mapper<'_>, frame: &Frame<'_>, masks: Option<&Fram
             img.put_pixel(x, h + y, Rgb(c));
         }
     }
-    // (d) the map, splatted with a depth buffer.
-    let mut zbuf = vec![f32::INFINITY; (w * h) as usize];
-    let k = frame.intrinsics;
-    let mut splat = |p: [f32; 3], radius_m: f32, colour: [u8; 3], img: &mut RgbImage| {
-        let Some([u, v]) = k.project(p) else { return };
-        let r = ((radius_m * k.fx / p[2]).ceil() as i32).clamp(1, 12);
-        for dy in -r..=r {
-            for dx in -r..=r {
-                let (x, y) = (u.round() as i32 + dx, v.round() as i32 + dy);
-                if x < 0 || y < 0 || x >= w as i32 || y >= h as i32 {
-                    continue;
-                }
-                let j = (y as u32 * w + x as u32) as usize;
-                if p[2] < zbuf[j] {
-                    zbuf[j] = p[2];
-                    img.put_pixel(w + x as u32, h + y as u32, Rgb(colour));
-                }
-            }
-        }
-    };
-    mapper.for_each_primitive(|prim| {
-        let (radius, colour) = match prim {
-            Primitive::Plane(p) => (0.5 * p.g_p, blend(PLANE_COLOUR, id_colour(p.cluster as u32), 0.25)),
-            Primitive::Sq(s) => (0.5 * m2smap_core::map::SQ_SAMPLE_SPACING, id_colour(s.instance as u32 * 7919)),
-            Primitive::Gmm(g) if g.instance != 0 => (0.01, blend(id_colour(g.instance as u32 * 7919), [0, 0, 0], 0.3)),
-            Primitive::Gmm(_) => (0.01, GMM_COLOUR),
-        };
-        prim.for_each_sample(|p| splat(p, radius, colour, &mut img));
-    });
+    // (d) the map, ray-cast from the camera.
+    let items = map_drawables(mapper);
+    let map = raycast::render(&items, &View::camera(&frame.intrinsics, w, h), BACKGROUND);
+    blit(&mut img, &map, w, h);
     // Legends.
     let white = [255, 255, 255];
     label(&mut img, 6, 6, "(A) RGB + INSTANCE MASKS", white);
     label(&mut img, w + 6, 6, "(B) SUPERVOXELS (BORDERS) + GAUSSIANS", white);
     label(&mut img, 6, h + 6, "(C) CLUSTERS AFTER FUSION", white);
-    label(&mut img, w + 6, h + 6, "(D) MAP:", white);
-    let mut x = w + 6 + 9 * 6;
-    for (name, colour) in [("PLANE", PLANE_COLOUR), ("SQ", id_colour(7919)), ("GMM", GMM_COLOUR)] {
-        for dy in 0..7 {
-            for dx in 0..7 {
-                img.put_pixel(x + dx, h + 6 + dy, Rgb(colour));
+    legend(&mut img, w, h, "(D) MAP:");
+    img.save(out).with_context(|| format!("{}: cannot write", out.display()))
+}
+
+/// The map's primitives, coloured by kind with the instance (planes: the cluster) as a tint.
+pub fn map_drawables(mapper: &Mapper<'_>) -> Vec<Drawable> {
+    raycast::drawables(
+        |f| mapper.for_each_primitive(f),
+        |prim| match prim {
+            Primitive::Plane(p) => blend(PLANE_COLOUR, id_colour(p.cluster as u32), TINT),
+            Primitive::Sq(s) => blend(SQ_COLOUR, id_colour(s.instance as u32 * 7919), TINT),
+            Primitive::Gmm(g) if g.instance != 0 => blend(GMM_COLOUR, id_colour(g.instance as u32 * 7919), TINT),
+            Primitive::Gmm(_) => GMM_COLOUR,
+        },
+    )
+}
+
+/// Copies a rendered image into `img` with its top-left corner at (x0, y0).
+fn blit(img: &mut RgbImage, from: &raycast::Image, x0: u32, y0: u32) {
+    for y in 0..from.height {
+        for x in 0..from.width {
+            if let Some(c) = from.colour.get((y * from.width + x) as usize) {
+                if x0 + x < img.width() && y0 + y < img.height() {
+                    img.put_pixel(x0 + x, y0 + y, Rgb(*c));
+                }
             }
         }
-        label(&mut img, x + 10, h + 6, name, white);
-        x += 10 + 6 * name.len() as u32 + 8;
     }
-    img.save(out).with_context(|| format!("{}: cannot write", out.display()))
+}
+
+/// The title of a map panel at (x, y) followed by the kind swatches and the tint note.
+fn legend(img: &mut RgbImage, x: u32, y: u32, title: &str) {
+    let white = [255, 255, 255];
+    label(img, x + 6, y + 6, title, white);
+    let mut cx = x + 6 + 6 * title.len() as u32 + 6;
+    for (name, colour) in [("PLANE", PLANE_COLOUR), ("SQ", SQ_COLOUR), ("GMM", GMM_COLOUR), ("TINT = INSTANCE", white)] {
+        if name.starts_with("TINT") {
+            label(img, cx, y + 6, name, white);
+            break;
+        }
+        for dy in 0..7 {
+            for dx in 0..7 {
+                if cx + dx < img.width() && y + 6 + dy < img.height() {
+                    img.put_pixel(cx + dx, y + 6 + dy, Rgb(colour));
+                }
+            }
+        }
+        label(img, cx + 10, y + 6, name, white);
+        cx += 10 + 6 * name.len() as u32 + 8;
+    }
+}
+
+/// Which viewpoint `render_views` draws the map from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MapView {
+    /// Four views around the objects, 45°, 135°, 225° and 315° from the camera's side, in a 2 × 2 picture.
+    Orbit,
+    /// One orbit view at this azimuth, degrees (counter-clockwise seen from above).
+    OrbitAt(f32),
+    /// From straight above.
+    Top,
+}
+
+/// Draws the map of the frame the mapper last processed from `view` (not the camera's) into a PNG at `out`; the
+/// optics are the frame's. Returns the number of pixels that show a primitive.
+pub fn render_views(mapper: &Mapper<'_>, frame: &Frame<'_>, view: MapView, out: &Path) -> Result<usize> {
+    let (w, h) = (frame.width as u32, frame.height as u32);
+    let items = map_drawables(mapper);
+    let camera = View::camera(&frame.intrinsics, w, h);
+    let framing = Framing::of(&items);
+    let panels: Vec<(Viewpoint, String)> = match view {
+        MapView::Orbit => [45.0f32, 135.0, 225.0, 315.0]
+            .iter()
+            .map(|&a| (Viewpoint::Orbit { azimuth: a.to_radians() }, format!("ORBIT {a:.0} DEG:")))
+            .collect(),
+        MapView::OrbitAt(a) => vec![(Viewpoint::Orbit { azimuth: a.to_radians() }, format!("ORBIT {a:.0} DEG:"))],
+        MapView::Top => vec![(Viewpoint::Top, "TOP:".to_owned())],
+    };
+    let (cols, rows) = if panels.len() > 1 { (2, 2) } else { (1, 1) };
+    let mut img = RgbImage::new(cols * w, rows * h);
+    let mut drawn = 0;
+    for (k, (viewpoint, title)) in panels.iter().enumerate() {
+        let (x0, y0) = ((k as u32 % cols) * w, (k as u32 / cols) * h);
+        let image = raycast::render(&items, &framing.view(*viewpoint, &camera), BACKGROUND);
+        drawn += image.kind.iter().filter(|k| k.is_some()).count();
+        blit(&mut img, &image, x0, y0);
+        legend(&mut img, x0, y0, title);
+    }
+    img.save(out).with_context(|| format!("{}: cannot write", out.display()))?;
+    Ok(drawn)
 }
 
 /// Draws upper-case text with a built-in 5×7 font (1 pixel apart, shadowed for contrast).
@@ -201,6 +290,7 @@ fn glyph(c: char) -> [u8; 7] {
         '-' => [0, 0, 0, 31, 0, 0, 0],
         '.' => [0, 0, 0, 0, 0, 12, 12],
         '/' => [0, 1, 2, 4, 8, 16, 0],
+        '=' => [0, 0, 31, 0, 31, 0, 0],
         _ => [0; 7],
     }
 }

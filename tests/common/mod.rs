@@ -68,3 +68,13 @@ pub fn run_ok(dataset: &std::path::Path, out: &std::path::Path, extra: &[&str]) 
     assert!(o.status.success(), "m2smap run failed: {}", String::from_utf8_lossy(&o.stderr));
     serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }
+
+/// Runs `m2smap args` and checks it fails with one `error: ` line that contains every one of `needles`.
+pub fn expect_failure(args: &[&str], needles: &[&str]) {
+    let o = m2smap(args);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "expected failure for {needles:?}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "one line: {stderr}");
+    assert!(stderr.starts_with("error: ") && needles.iter().all(|n| stderr.contains(n)), "{stderr:?} should name {needles:?}");
+    assert!(!stderr.contains("panicked"));
+}
