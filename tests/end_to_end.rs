@@ -502,3 +502,95 @@ fn cabinet_is_one_tracked_superquadric_with_stable_size() {
     println!("cabinet half-axes (sorted, m): {}; wire quantisation moves samples by at most {:.2} mm", spread.join(", "), worst_shift * 1000.0);
     assert!(worst_shift < 1e-3);
 }
+
+/// `from` with every image enlarged `k` times (each pixel a k × k block), then cropped to `height` rows when
+/// given: a sensor with k times the resolution. camera.json and the mask boxes are scaled to match.
+fn enlarge_dataset(from: &Path, to: &Path, k: u32, height: Option<u32>) {
+    fs::create_dir_all(to).unwrap();
+    for e in fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let (path, target) = (e.path(), to.join(e.file_name()));
+        if e.file_type().unwrap().is_dir() {
+            enlarge_dataset(&path, &target, k, height);
+        } else if path.extension().is_some_and(|x| x == "png") {
+            let img = image::open(&path).unwrap();
+            let h = height.unwrap_or(img.height() * k).min(img.height() * k);
+            let big = img.resize_exact(img.width() * k, img.height() * k, image::imageops::FilterType::Nearest).crop_imm(0, 0, img.width() * k, h);
+            big.save(&target).unwrap();
+        } else if path.file_name().is_some_and(|n| n == "camera.json") {
+            let mut c: serde_json::Value = serde_json::from_str(&fs::read_to_string(&path).unwrap()).unwrap();
+            for key in ["fx", "fy", "cx", "cy"] {
+                c[key] = serde_json::json!(c[key].as_f64().unwrap() * k as f64);
+            }
+            c["width"] = serde_json::json!(c["width"].as_u64().unwrap() as u32 * k);
+            c["height"] = serde_json::json!(height.unwrap_or(c["height"].as_u64().unwrap() as u32 * k));
+            fs::write(&target, c.to_string()).unwrap();
+        } else if path.extension().is_some_and(|x| x == "json") && path.parent().is_some_and(|p| p.ends_with("masks")) {
+            let mut m: serde_json::Value = serde_json::from_str(&fs::read_to_string(&path).unwrap()).unwrap();
+            for inst in m["instances"].as_array_mut().unwrap() {
+                let b: Vec<u64> = inst["bbox"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+                inst["bbox"] = serde_json::json!([b[0] * k as u64, b[1] * k as u64, b[2] * k as u64 + k as u64 - 1, b[3] * k as u64 + k as u64 - 1]);
+            }
+            fs::write(&target, m.to_string()).unwrap();
+        } else {
+            fs::copy(&path, &target).unwrap();
+        }
+    }
+}
+
+/// Frames larger than the capacity profile map through `--downscale N`: subsampling a 3× enlarged scene by 3
+/// gives back the original frames exactly, so the maps are the same (up to the rounding of fx·3/3 in f32); a
+/// 1920×1080 sensor maps with
+/// `--downscale 2`, and without it the error names the option.
+#[test]
+fn large_frames_map_through_downscale() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 3);
+    let big = dir.path().join("big");
+    enlarge_dataset(&scene, &big, 3, None);
+    let original = run_ok(&scene, &dir.path().join("a"), &[]);
+    let restored = run_ok(&big, &dir.path().join("b"), &["--downscale", "3"]);
+    for key in ["primitives", "payload_bytes", "n_adh"] {
+        assert_eq!(original[key], restored[key], "{key}");
+    }
+    for key in ["g2r_rmse_m", "r2g_rmse_m"] {
+        let (a, b) = (original[key].as_f64().unwrap(), restored[key].as_f64().unwrap());
+        assert!((a - b).abs() <= 1e-5 * a, "{key}: {a} vs {b}");
+    }
+    assert!(original["primitives"]["sq"].as_f64().unwrap() >= 1.0);
+    // 1920 × 1080 (the 3× scene's top 1080 rows).
+    let hd = dir.path().join("hd");
+    enlarge_dataset(&scene, &hd, 3, Some(1080));
+    let out = dir.path().join("c");
+    expect_failure(&["run", hd.to_str().unwrap(), "--out", out.to_str().unwrap()], &["2073600 pixels", "--downscale 2"]);
+    let s = run_ok(&hd, &out, &["--downscale", "2"]);
+    assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.0 && s["g2r_rmse_m"].as_f64().unwrap() < 0.05, "{s}");
+    assert!(s["camera"].as_str().unwrap().contains("960×540 (--downscale 2 of 1920×1080)"), "{}", s["camera"]);
+    // render and export take it too, and a factor out of range is refused.
+    let png = dir.path().join("hd.png");
+    let o = m2smap(&["render", hd.to_str().unwrap(), "--frame", "1", "--downscale", "2", "--out", png.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(image::open(&png).unwrap().to_rgb8().dimensions(), (1920, 1080), "2 × 2 panels of 960 × 540");
+    expect_failure(&["run", hd.to_str().unwrap(), "--out", out.to_str().unwrap(), "--downscale", "0"], &["--downscale 0"]);
+}
+
+/// `render` and `export` take `--profile` like `run`: the mcu profile's smaller pools give a different map of
+/// a frame with more points than they hold.
+#[test]
+fn render_and_export_take_the_profile() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synth_folder(dir.path(), 2);
+    let (host, mcu) = (dir.path().join("host.ply"), dir.path().join("mcu.ply"));
+    for (ply, profile) in [(&host, "host"), (&mcu, "mcu")] {
+        let o = m2smap(&["export", scene.to_str().unwrap(), "--frame", "1", "--profile", profile, "--ply", ply.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let (a, b) = (m2smap::export::read_ply_vertices(&host).unwrap(), m2smap::export::read_ply_vertices(&mcu).unwrap());
+    assert!(!b.is_empty() && a.len() != b.len(), "host {} vs mcu {} vertices", a.len(), b.len());
+    let png = dir.path().join("mcu.png");
+    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "1", "--profile", "mcu", "--out", png.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = m2smap(&["export", scene.to_str().unwrap(), "--frame", "1", "--profile", "big", "--ply", host.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && stderr.contains("'big'") && stderr.contains("host, mcu, tiny"), "{stderr}");
+}

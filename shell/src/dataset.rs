@@ -284,6 +284,9 @@ pub enum Layout {
     SevenScenes,
 }
 
+/// The largest `--downscale` factor.
+pub const MAX_DOWNSCALE: u16 = 8;
+
 /// A dataset folder: its frames and camera.
 #[derive(Debug, Clone)]
 pub struct Dataset {
@@ -298,6 +301,11 @@ pub struct Dataset {
     pub camera_source: String,
     /// Frames in time order.
     pub frames: Vec<FrameRef>,
+    /// Every frame is subsampled by this factor on loading (`--downscale`; 1 = full size): `camera` is then the
+    /// camera of the subsampled frames.
+    pub downscale: u16,
+    /// Width and height of the files, pixels (before `downscale`).
+    pub source_size: (u16, u16),
 }
 
 /// The TUM sequence (`fr1`, `fr2`, `fr3`) that a folder's name names, if any (`freiburg1` reads as `fr1`).
@@ -380,7 +388,46 @@ impl Dataset {
                 root.display()
             )
         })?;
-        Ok(Dataset { root: root.to_owned(), layout, camera, camera_source, frames })
+        let source_size = (camera.width, camera.height);
+        Ok(Dataset { root: root.to_owned(), layout, camera, camera_source, frames, downscale: 1, source_size })
+    }
+
+    /// This dataset with every frame subsampled by `n` (1–[`MAX_DOWNSCALE`]): output pixel (x, y) is input pixel
+    /// (n·x, n·y) of depth, colour, masks and ground truth alike (no averaging, so no depth is mixed across an
+    /// edge), and the camera becomes fx/n, fy/n, cx/n, cy/n at ⌊width/n⌋ × ⌊height/n⌋, which is exact for that
+    /// sampling. For sensors whose frames exceed the capacity profile (e.g. 1920 × 1080 with `--downscale 2`).
+    pub fn downscaled(mut self, n: u16) -> Result<Dataset> {
+        if !(1..=MAX_DOWNSCALE).contains(&n) {
+            bail!("--downscale {n}: must be 1 to {MAX_DOWNSCALE}");
+        }
+        let n32 = n as f32;
+        let c = self.camera;
+        let (width, height) = (self.source_size.0 / n, self.source_size.1 / n);
+        if width == 0 || height == 0 {
+            bail!("--downscale {n}: a {}x{} frame would have no pixels left", self.source_size.0, self.source_size.1);
+        }
+        self.camera = Camera { fx: c.fx / n32, fy: c.fy / n32, cx: c.cx / n32, cy: c.cy / n32, width, height, ..c };
+        self.downscale = n;
+        Ok(self)
+    }
+
+    /// Subsamples a full-size image with `channels` values per pixel to the dataset's frame size (a copy when
+    /// `downscale` is 1); `None` when `data` is not a full-size image.
+    pub fn subsample<T: Copy>(&self, data: &[T], channels: usize) -> Option<Vec<T>> {
+        let (sw, sh) = (self.source_size.0 as usize, self.source_size.1 as usize);
+        if data.len() != sw * sh * channels {
+            return None;
+        }
+        let n = self.downscale as usize;
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let mut out = Vec::with_capacity(w * h * channels);
+        for y in 0..h {
+            for x in 0..w {
+                let i = (n * y * sw + n * x) * channels;
+                out.extend_from_slice(data.get(i..i + channels)?);
+            }
+        }
+        Some(out)
     }
 
     /// Decodes frame `i`, checking its size against the camera.
@@ -398,15 +445,20 @@ impl Dataset {
         if (cw, ch) != (dw, dh) {
             bail!("{}: colour image is {cw}x{ch} but the depth image is {dw}x{dh}", f.colour.display());
         }
-        if (dw, dh) != (self.camera.width as u32, self.camera.height as u32) {
+        if (dw, dh) != (self.source_size.0 as u32, self.source_size.1 as u32) {
             bail!(
                 "{}: depth image is {dw}x{dh} but the camera is {}x{}",
                 f.depth.display(),
-                self.camera.width,
-                self.camera.height
+                self.source_size.0,
+                self.source_size.1
             );
         }
-        Ok(LoadedFrame { width: dw as u16, height: dh as u16, depth, colour })
+        if self.downscale == 1 {
+            return Ok(LoadedFrame { width: dw as u16, height: dh as u16, depth, colour });
+        }
+        let depth = self.subsample(&depth, 1).ok_or_else(|| anyhow!("{}: cannot subsample", f.depth.display()))?;
+        let colour = self.subsample(&colour, 3).ok_or_else(|| anyhow!("{}: cannot subsample", f.colour.display()))?;
+        Ok(LoadedFrame { width: self.camera.width, height: self.camera.height, depth, colour })
     }
 }
 

@@ -1,4 +1,4 @@
-//! The `m2smap` command line (SPEC §6).
+//! The `m2smap` command line (every command and option: docs/cli.md).
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -12,7 +12,7 @@ use m2smap::dataset::Dataset;
 use m2smap::masks::{mask_dir, LabelTable};
 use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
 use m2smap::{budget, export, render, report, synth};
-use m2smap_core::{HostStorage, Mapper, Params};
+use m2smap_core::{HostStorage, Mapper, McuStorage, Params, TinyStorage};
 
 /// What `render` and `export` map a frame with.
 struct Session<'a, 'm> {
@@ -35,6 +35,13 @@ struct MappingArgs {
     /// Camera: a TUM preset (fr1, fr2, fr3) or a camera.json file (default: guessed from the folder).
     #[arg(long)]
     camera: Option<String>,
+    /// Capacity profile of the core.
+    #[arg(long, value_enum, default_value = "host")]
+    profile: ProfileChoice,
+    /// Subsample every frame (depth, colour, masks) by N before mapping: pixel (x, y) is pixel (N·x, N·y) and
+    /// the camera's focal lengths and principal point are divided by N (e.g. 2 for 1920×1080 sensors).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    downscale: u16,
 }
 
 /// Where `render` looks from.
@@ -56,8 +63,8 @@ fn parse_variant(name: &str) -> Result<Variant> {
     })
 }
 
-/// Opens a dataset and runs `f` with a host-profile mapper (the variant, parameters and camera of `how`) and
-/// the frame's mask source.
+/// Opens a dataset and runs `f` with a mapper of the variant, parameters, camera, capacity profile and
+/// subsampling of `how`, and the frame's mask source.
 fn with_mapper(
     dataset: &std::path::Path,
     how: &MappingArgs,
@@ -65,13 +72,28 @@ fn with_mapper(
     segmenter: Option<Segmenter>,
     f: impl FnOnce(Session<'_, '_>) -> Result<()>,
 ) -> Result<()> {
-    let d = Dataset::open(dataset, how.camera.as_deref())?;
+    let d = Dataset::open(dataset, how.camera.as_deref())?.downscaled(how.downscale)?;
     let mut params: Params = m2smap::run::load_params(how.config.as_deref())?;
     if let Some(name) = how.variant.as_deref() {
         params.variant = parse_variant(name)?;
     }
-    let mut storage = bytemuck::zeroed_box::<HostStorage>();
-    let mut mapper = Mapper::new(&mut *storage, params).map_err(|e| anyhow!("{e}"))?;
+    // Only the chosen profile's storage is allocated.
+    let (mut host, mut mcu, mut tiny);
+    let mapper = match how.profile {
+        ProfileChoice::Host => {
+            host = bytemuck::zeroed_box::<HostStorage>();
+            Mapper::new(&mut *host, params)
+        }
+        ProfileChoice::Mcu => {
+            mcu = bytemuck::zeroed_box::<McuStorage>();
+            Mapper::new(&mut *mcu, params)
+        }
+        ProfileChoice::Tiny => {
+            tiny = bytemuck::zeroed_box::<TinyStorage>();
+            Mapper::new(&mut *tiny, params)
+        }
+    };
+    let mut mapper = mapper.map_err(|e| anyhow!("{e}"))?;
     let masks_dir = mask_dir(&d.root, masks.as_deref());
     let mut labels = LabelTable::default();
     let mut seg = SegmenterBuffers::default();
@@ -118,6 +140,10 @@ enum Command {
         /// Capacity profile of the core.
         #[arg(long, value_enum, default_value = "host")]
         profile: ProfileChoice,
+        /// Subsample every frame (depth, colour, masks) by N before mapping: pixel (x, y) is pixel (N·x, N·y) and
+        /// the camera's focal lengths and principal point are divided by N (e.g. 2 for 1920×1080 sensors).
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        downscale: u16,
         /// Instance-mask folder (default: DATASET/masks when it exists).
         #[arg(long, conflicts_with = "segmenter")]
         masks: Option<PathBuf>,
@@ -259,7 +285,7 @@ fn main() -> ExitCode {
 
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { dataset, out, variant, frames, config, camera, profile, masks, segmenter, faults, fault_rate } => {
+        Command::Run { dataset, out, variant, frames, config, camera, profile, downscale, masks, segmenter, faults, fault_rate } => {
             let variant = match variant {
                 Some(name) => Some(parse_variant(&name)?),
                 None => None,
@@ -272,6 +298,7 @@ fn execute(cli: Cli) -> Result<()> {
                 config,
                 camera,
                 profile,
+                downscale,
                 masks,
                 segmenter,
                 faults: faults.map(|seed| (seed, fault_rate)),

@@ -1,4 +1,4 @@
-//! Instance-mask readers (SPEC §5): an id image `masks/<stem>.png` (8- or 16-bit, 0 = none) with
+//! Instance-mask readers (docs/formats.md): an id image `masks/<stem>.png` (8- or 16-bit, 0 = none) with
 //! `masks/<stem>.json` = `{"instances": [{"id", "label", "score", "bbox": [x0, y0, x1, y1]}]}`, or YOLO
 //! segmentation text `masks/<stem>.txt` (`class x1 y1 x2 y2 … [conf]`, normalised polygon per line) with a
 //! names file (`masks/names.txt`, one class name per line). A frame without a mask file has no instances.
@@ -72,7 +72,54 @@ impl FrameMasks {
         }
     }
 
-    /// Instance id of the first instance containing pixel (u, v), 0 for none (the reference label of SPEC §4).
+    /// These masks subsampled by `n` to `width × height` (pixel (x, y) is pixel (n·x, n·y)), boxes scaled to
+    /// match; see [`crate::dataset::Dataset::downscaled`].
+    pub fn subsampled(&self, n: u16, width: u16, height: u16) -> FrameMasks {
+        let view = self.view();
+        let n = n.max(1);
+        let at = |x: u16, y: u16| (x.saturating_mul(n), y.saturating_mul(n));
+        let pixels = match &self.pixels {
+            Pixels::Ids(ids) => Pixels::Ids(
+                (0..height)
+                    .flat_map(|y| (0..width).map(move |x| (x, y)))
+                    .map(|(x, y)| {
+                        let (u, v) = at(x, y);
+                        ids.get(v as usize * self.width as usize + u as usize).copied().unwrap_or(0)
+                    })
+                    .collect(),
+            ),
+            Pixels::Bits(_) => {
+                let plane = MaskSet::plane_bytes(width, height);
+                let mut bits = vec![0u8; plane * self.instances.len()];
+                for k in 0..self.instances.len() {
+                    for y in 0..height {
+                        for x in 0..width {
+                            let (u, v) = at(x, y);
+                            if view.contains(k, u, v) {
+                                let i = y as usize * width as usize + x as usize;
+                                if let Some(b) = bits.get_mut(k * plane + i / 8) {
+                                    *b |= 1 << (i % 8);
+                                }
+                            }
+                        }
+                    }
+                }
+                Pixels::Bits(bits)
+            }
+        };
+        let scale = |c: u16, max: u16| (c / n).min(max.saturating_sub(1));
+        let instances = self
+            .instances
+            .iter()
+            .map(|i| Instance {
+                bbox: [scale(i.bbox[0], width), scale(i.bbox[1], height), scale(i.bbox[2], width), scale(i.bbox[3], height)],
+                ..*i
+            })
+            .collect();
+        FrameMasks { width, height, instances, pixels }
+    }
+
+    /// Instance id of the first instance containing pixel (u, v), 0 for none (the reference label of docs/metrics.md).
     pub fn id_at(&self, u: u16, v: u16) -> u16 {
         let view = self.view();
         (0..self.instances.len()).find(|&k| view.contains(k, u, v)).and_then(|k| self.instances.get(k)).map_or(0, |i| i.id)

@@ -1,6 +1,6 @@
-//! The evaluation suite (`m2smap eval`): every variant of SPEC §3 on every dataset, and `report.md` with the
-//! paper's Table I (primitive composition), Table II (ablation) and the comparison figure (G2R, R2G and payload
-//! per dataset and method) as SVG and PNG, and a table of the map-level metrics ([`crate::eval`]).
+//! The evaluation suite (`m2smap eval`): every variant (docs/variants.md) on every dataset, and `report.md` with
+//! the paper's Table I (primitive composition), Table II (ablation) and the comparison figure (G2R, R2G and
+//! payload per dataset and method) as SVG and PNG, and a table of the map-level metrics ([`crate::eval`]).
 //!
 //! Every number in the report is read from the runs' `summary.json` (written by [`crate::run::run`] into
 //! `OUT/<dataset>/<variant>/`); nothing is a constant.
@@ -98,6 +98,7 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
                 config: None,
                 camera: None,
                 profile: ProfileChoice::Host,
+                downscale: 1,
                 masks: None,
                 segmenter: None,
                 faults: None,
@@ -162,9 +163,9 @@ pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
     let _ = writeln!(s, "# m2smap evaluation report\n");
     let _ = writeln!(
         s,
-        "Every variant of SPEC §3 on every dataset (host profile, release build, single thread). Numbers are means \
-         over frames from each run's `summary.json` (`<dataset>/<variant>/summary.json` beside this file); T is the \
-         median core time per frame.\n"
+        "Every variant (full, pmsao, wsqa, mmog, mmp, mmq) on every dataset (host profile, release build, single \
+         thread). Numbers are means over frames from each run's `summary.json` (`<dataset>/<variant>/summary.json` \
+         beside this file); T is the median core time per frame.\n"
     );
     let _ = writeln!(s, "| dataset | frames | folder |\n|---|---:|---|");
     for d in datasets {
@@ -266,13 +267,13 @@ pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
     let _ = writeln!(s, "![comparison](comparison.svg)\n");
     let _ = writeln!(
         s,
-        "G2R, R2G and payload as SPEC §4 defines them (SPEC's G2R uses the camera-facing superquadric samples \
-         only). \"G2R unocc.\" is a diagnostic beside them: the G2R over the \
+        "G2R, R2G and payload as m2smap's docs/metrics.md defines them (G2R uses the camera-facing superquadric \
+         samples only). \"G2R unocc.\" is a diagnostic beside them: the G2R over the \
          reconstruction samples that the observed depth does not hide (more than 5 cm behind the measured depth of \
-         their pixel), e.g. the camera-facing contact face of an object pressed against another, which SPEC's \
-         normal test keeps although no camera can see it.\n"
+         their pixel), e.g. the camera-facing contact face of an object pressed against another, which the \
+         camera-facing normal test keeps although no camera can see it.\n"
     );
-    let _ = writeln!(s, "| Method | Dataset | SPEC G2R (camera-facing samples) (m) | G2R unocc. (m) | R2G RMSE (m) | payload (B) | B/primitive | Hz |\n|---|---|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(s, "| Method | Dataset | G2R (camera-facing samples) (m) | G2R unocc. (m) | R2G RMSE (m) | payload (B) | B/primitive | Hz |\n|---|---|---:|---:|---:|---:|---:|---:|");
     for v in Variant::ALL {
         for d in datasets {
             let Some(x) = d.summary(v) else { continue };
@@ -300,14 +301,15 @@ fn map_level_table(s: &mut String, datasets: &[DatasetRuns]) {
     let _ = writeln!(s, "\n## Map-level metrics\n");
     let _ = writeln!(
         s,
-        "Beside SPEC §4, from every surface sample of each variant's own map (a superquadric's whole surface, not \
-         only its camera-facing side); tolerance max(2 cm, 3σ(z)). Free space = fraction of the samples whose \
-         status is known that lie in front of every valid depth within 2 px. Behind = superquadrics with > 2 % of \
-         their samples behind the observed depth of unlabelled (gt id 0) pixels, per frame. Adhesion = primitives \
-         whose depth-consistent samples fall on two ground-truth ids (≥ 10 % each), per frame. G2R true = RMS \
-         distance of the samples to the true surfaces; penetration = per primitive, the depth of its deepest \
-         sample inside another true solid (behind a plane), p95 and max over all primitives of the run (synthetic \
-         sets with `gt/objects.json`). \"–\": not computable (no superquadric, no `gt/`, no true surfaces).\n"
+        "Beside the reconstruction metrics above, from every surface sample of each variant's own map (a \
+         superquadric's whole surface, not only its camera-facing side); tolerance max(2 cm, 3σ(z)). Free space = \
+         fraction of the samples whose status is known that lie in front of every valid depth within 2 px. Behind = \
+         superquadrics with > 2 % of their samples behind the observed depth of unlabelled (gt id 0) pixels, per \
+         frame. Adhesion = primitives whose depth-consistent samples fall on two ground-truth ids (≥ 10 % each), per \
+         frame. G2R true = RMS distance of the samples to the true surfaces; penetration = per primitive, the depth \
+         of its deepest sample inside another true solid (behind a plane), p95 and max over all primitives of the \
+         run (synthetic sets with `gt/objects.json`). \"–\": not computable (no superquadric, no `gt/`, no true \
+         surfaces).\n"
     );
     let _ = writeln!(
         s,

@@ -1,4 +1,4 @@
-//! `m2smap run`: replays a dataset through the core and writes `summary.json` and `frames.jsonl` (SPEC §6).
+//! `m2smap run`: replays a dataset through the core and writes `summary.json` and `frames.jsonl` (docs/formats.md).
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -54,6 +54,8 @@ pub struct RunOptions {
     pub camera: Option<String>,
     /// Capacity profile.
     pub profile: ProfileChoice,
+    /// Subsample every frame by this factor (1 = full size; see [`Dataset::downscaled`]).
+    pub downscale: u16,
     /// Mask folder (`--masks`); default `DATASET/masks` when present.
     pub masks: Option<PathBuf>,
     /// `--segmenter geometric`; the default when no masks exist.
@@ -88,7 +90,7 @@ pub struct PoolRecord {
     pub overflow_events: u64,
 }
 
-/// Per-frame values (the keys of SPEC §6 plus the stage counts), one line of `frames.jsonl`.
+/// Per-frame values (the keys of docs/formats.md, with the stage counts), one line of `frames.jsonl`.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct FrameRecord {
     /// Frame index in the run, from 0.
@@ -151,8 +153,8 @@ pub struct FrameRecord {
     pub payload_bytes: Option<f64>,
     /// Generated-to-real RMSE, metres.
     pub g2r_rmse_m: Option<f64>,
-    /// G2R over the samples the observed depth does not hide, metres (a diagnostic beside SPEC §4, see
-    /// [`crate::eval::ReconstructionMetrics::g2r_unoccluded_rmse_m`]).
+    /// G2R over the samples the observed depth does not hide, metres (a diagnostic beside the paper's metrics,
+    /// docs/metrics.md; see [`crate::eval::ReconstructionMetrics::g2r_unoccluded_rmse_m`]).
     pub g2r_unoccluded_rmse_m: Option<f64>,
     /// Real-to-generated RMSE, metres.
     pub r2g_rmse_m: Option<f64>,
@@ -164,7 +166,7 @@ pub struct FrameRecord {
     pub n_adh: Option<f64>,
     /// Mean SQ rotation jump, degrees.
     pub j_sq_deg: Option<f64>,
-    /// Map-level (beside SPEC §4, from all the surface samples of the frame's own map, [`eval::map_samples`]):
+    /// Map-level (docs/metrics.md, from all the surface samples of the frame's own map, [`eval::map_samples`]):
     /// fraction of the samples whose status is known that lie in free space ([`eval::free_space`]).
     pub free_space_violation: Option<f64>,
     /// The same over the superquadric samples.
@@ -368,11 +370,26 @@ pub fn map_frame_with_fault(
         }
     }
     let frame = loaded.view_posed(&dataset.camera, pose.as_ref());
-    let error = |e: m2smap_core::FrameError| anyhow!("{}: {e}", fref.depth.display());
+    let error = |e: m2smap_core::FrameError| match e {
+        m2smap_core::FrameError::TooLarge { pixels, max_pixels } => {
+            // The smallest subsampling that fits, counted on the files' own size.
+            let (w, h) = (dataset.source_size.0 as usize, dataset.source_size.1 as usize);
+            let fits = (1..=crate::dataset::MAX_DOWNSCALE).find(|&n| (w / n as usize) * (h / n as usize) <= max_pixels as usize);
+            match fits {
+                Some(n) if n > dataset.downscale => anyhow!("{}: {e}; pass --downscale {n} to map it at {}x{}", fref.depth.display(), w / n as usize, h / n as usize),
+                _ => anyhow!("{}: {e} ({pixels} pixels)", fref.depth.display()),
+            }
+        }
+        e => anyhow!("{}: {e}", fref.depth.display()),
+    };
     match source {
         MaskSource::Files(dir) => {
             let masks = match dir {
-                Some(d) => read_frame_masks(d, mask_stem, loaded.width, loaded.height, labels)?,
+                Some(d) => {
+                    let (w, h) = dataset.source_size;
+                    read_frame_masks(d, mask_stem, w, h, labels)?
+                        .map(|m| if dataset.downscale > 1 { m.subsampled(dataset.downscale, loaded.width, loaded.height) } else { m })
+                }
                 None => None,
             };
             let start = Instant::now();
@@ -440,7 +457,7 @@ pub fn pool_records(report: &FrameReport) -> BTreeMap<String, PoolRecord> {
 
 /// Runs the mapper over a dataset and writes the outputs. Returns the summary.
 pub fn run(opts: &RunOptions) -> Result<Summary> {
-    let dataset = Dataset::open(&opts.dataset, opts.camera.as_deref())?;
+    let dataset = Dataset::open(&opts.dataset, opts.camera.as_deref())?.downscaled(opts.downscale)?;
     if dataset.frames.is_empty() {
         return Err(anyhow!("{}: the dataset lists no frames", opts.dataset.display()));
     }
@@ -465,8 +482,12 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
     };
     let mut summary = summarise(&records, params.variant, opts.profile);
     let c = &dataset.camera;
+    let subsampled = match dataset.downscale {
+        1 => String::new(),
+        n => format!(" (--downscale {n} of {}×{})", dataset.source_size.0, dataset.source_size.1),
+    };
     summary.camera = format!(
-        "{}: fx {} fy {} cx {} cy {}, {}×{}, depth scale {}",
+        "{}: fx {} fy {} cx {} cy {}, {}×{}{subsampled}, depth scale {}",
         dataset.camera_source, c.fx, c.fy, c.cx, c.cy, c.width, c.height, c.depth_scale
     );
     let path = opts.out.join("summary.json");
@@ -522,7 +543,12 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         let repeats = if fault == Some(Fault::RepeatedTimestamp) { 2 } else { 1 };
         for _ in 0..repeats {
         let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
-        let gt = if gt_path.is_file() { Some(read_depth(&gt_path)?.2) } else { None };
+        let gt = if gt_path.is_file() {
+            let ids = read_depth(&gt_path)?.2;
+            Some(dataset.subsample(&ids, 1).ok_or_else(|| anyhow!("{}: not the size of the frames", gt_path.display()))?)
+        } else {
+            None
+        };
         let source = if segmenter { MaskSource::Segmenter } else { MaskSource::Files(masks_dir.as_deref()) };
         let seed = opts.faults.map_or(0, |(s, _)| s);
         let mapped = map_frame_with_fault(&mut mapper, dataset, index, source, &mut labels, &mut seg, fault.map(|f| (f, seed)));
