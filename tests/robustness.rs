@@ -157,7 +157,8 @@ fn a_restored_snapshot_resumes_with_identical_maps() {
 #[test]
 fn fuzz_seeds_and_past_crashes_replay_cleanly() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../fuzz");
-    let targets: [(&str, fn(&[u8])); 4] = [
+    type Target = (&'static str, fn(&[u8]));
+    let targets: [Target; 4] = [
         ("wire_decode", m2smap::fuzzing::wire_decode),
         ("mapper_frame", m2smap::fuzzing::mapper_frame),
         ("masks_parse", m2smap::fuzzing::masks_parse),

@@ -462,9 +462,12 @@ impl Dataset {
     }
 }
 
+/// A folder's camera with where it came from (`None` when the folder does not say), and its frames.
+type Opened = (Option<(Camera, String)>, Vec<FrameRef>);
+
 /// A TUM folder's frames and camera with where the camera came from (`camera.json`, else the preset its name
 /// names; `None` when neither).
-fn open_tum(root: &Path) -> Result<(Option<(Camera, String)>, Vec<FrameRef>)> {
+fn open_tum(root: &Path) -> Result<Opened> {
     let rgb = read_list(&root.join("rgb.txt"), 1)?;
     let depth = read_list(&root.join("depth.txt"), 1)?;
     let pairs = associate(
@@ -499,7 +502,7 @@ fn open_tum(root: &Path) -> Result<(Option<(Camera, String)>, Vec<FrameRef>)> {
 }
 
 /// A 7-Scenes folder's frames and camera (from `camera-intrinsics.txt`).
-fn open_seven_scenes(root: &Path) -> Result<(Option<(Camera, String)>, Vec<FrameRef>)> {
+fn open_seven_scenes(root: &Path) -> Result<Opened> {
     let k_path = root.join("camera-intrinsics.txt");
     let text = fs::read_to_string(&k_path).with_context(|| format!("{}: cannot read", k_path.display()))?;
     let camera = parse_intrinsics(&text).map_err(|e| anyhow!("{}: {e}", k_path.display()))?;

@@ -182,7 +182,7 @@ impl Shape {
                     return None;
                 }
                 let t = linalg::dot(n, linalg::sub(*centroid, o)) / denom;
-                if !(t >= t_min) {
+                if t.is_nan() || t < t_min {
                     return None;
                 }
                 let rel = linalg::sub(linalg::add(o, linalg::scale(d, t)), *centroid);
@@ -218,7 +218,7 @@ fn hit_superquadric(s: &Superquadric, o: Vec3, d: Vec3, t_min: f32) -> Option<(f
         t0 = t0.max(ta.min(tb));
         t1 = t1.min(ta.max(tb));
     }
-    if !(t0 < t1) {
+    if t0.is_nan() || t1.is_nan() || t0 >= t1 {
         return None;
     }
     let inside = |t: f32| s.implicit(linalg::add(lo, linalg::scale(ld, t))) < 1.0;

@@ -374,7 +374,7 @@ pub fn map_frame_with_fault(
         m2smap_core::FrameError::TooLarge { pixels, max_pixels } => {
             // The smallest subsampling that fits, counted on the files' own size.
             let (w, h) = (dataset.source_size.0 as usize, dataset.source_size.1 as usize);
-            let fits = (1..=crate::dataset::MAX_DOWNSCALE).find(|&n| (w / n as usize) * (h / n as usize) <= max_pixels as usize);
+            let fits = (1..=crate::dataset::MAX_DOWNSCALE).find(|&n| (w / n as usize) * (h / n as usize) <= max_pixels);
             match fits {
                 Some(n) if n > dataset.downscale => anyhow!("{}: {e}; pass --downscale {n} to map it at {}x{}", fref.depth.display(), w / n as usize, h / n as usize),
                 _ => anyhow!("{}: {e} ({pixels} pixels)", fref.depth.display()),
