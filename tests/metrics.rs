@@ -1,4 +1,4 @@
-//! Reconstruction metrics (SPEC §4) and the map-level metrics beside them on synthetic frames whose truth is
+//! Reconstruction metrics (docs/metrics.md) and the map-level metrics beside them on synthetic frames whose truth is
 //! known, and their keys in `m2smap run`'s outputs.
 
 mod common;
@@ -188,7 +188,8 @@ fn map_samples_hold_every_primitive_with_its_whole_surface() {
     let map = map_samples(&mapper);
     let count = |k: u8| map.prims.iter().filter(|p| p.kind == k).count() as u32;
     assert_eq!((count(0), count(1), count(2)), (report.planes, report.sqs, report.gmms));
-    // A superquadric's surface samples are its SPEC samples plus the far side: about twice as many.
+    // A superquadric's surface samples are its reconstruction (camera-facing) samples plus the far side: about
+    // twice as many.
     let mut k = 0;
     mapper.for_each_primitive(|p| {
         let mut spec = 0usize;

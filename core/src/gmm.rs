@@ -1,8 +1,8 @@
 //! Stage 3: IH-GMM-style hierarchical refinement of each supervoxel into compact Gaussians, the set C_g
 //! (paper §III-A, after Gao and Dong's integrated hierarchical GMM, for which no public code exists).
 //!
-//! **Split rule (decided here, SPEC §2).** A cluster (a set of voxels of one supervoxel) is split in two when
-//! all of these hold:
+//! **Split rule (decided here; docs/pipeline.md, stage 3).** A cluster (a set of voxels of one supervoxel) is
+//! split in two when all of these hold:
 //! - it is not compact: its thickness σ2 exceeds max(`gmm_max_thickness`, `gmm_noise_sigmas`·σ(z)) (1 cm, or
 //!   twice the sensor's depth noise at the cluster's mean depth z: it bends or spans two surfaces),
 //!   its voxel normals spread more than `gmm_max_normal_spread` (a fold or a junction of two surfaces that is

@@ -1,5 +1,5 @@
 //! The frame map: bounded planes, object superquadrics and GMM primitives (paper §V) with their semantic
-//! attributes, and the deterministic reconstruction samples of SPEC §4 used by evaluation and rendering.
+//! attributes, and the deterministic reconstruction samples of docs/metrics.md used by evaluation and rendering.
 
 use crate::linalg::{self, Mat3, Vec3};
 use crate::superquadric::Superquadric;
@@ -119,7 +119,7 @@ pub enum Primitive<'a> {
     Gmm(MapGmm),
 }
 
-/// Spacing of superquadric surface samples, metres (SPEC §4).
+/// Spacing of superquadric surface samples, metres (docs/metrics.md).
 pub const SQ_SAMPLE_SPACING: f32 = 0.03;
 /// Most samples of one Gaussian.
 pub const GMM_MAX_SAMPLES: u32 = 60;
@@ -223,7 +223,7 @@ impl MapGmm {
 }
 
 impl Primitive<'_> {
-    /// The reconstruction samples of this primitive (SPEC §4), camera frame, metres.
+    /// The reconstruction samples of this primitive (docs/metrics.md), camera frame, metres.
     pub fn for_each_sample(&self, f: impl FnMut(Vec3)) {
         match self {
             Primitive::Plane(p) => p.for_each_sample(f),
@@ -257,7 +257,7 @@ mod tests {
     #[test]
     fn surface_samples_cover_the_whole_shape_and_include_the_camera_facing_ones() {
         // A sphere of radius 0.1 m, 1 m in front of the camera: every surface sample lies on the sphere, about
-        // half face the camera, and those are exactly the SPEC samples (same grid, same order).
+        // half face the camera, and those are exactly the reconstruction samples (same grid, same order).
         let s = sq([0.0, 0.0, 1.0], [0.1, 0.1, 0.1], [1.0, 1.0]);
         let (mut all, mut visible) = (Vec::new(), Vec::new());
         s.for_each_surface_sample(|p| all.push(p));

@@ -1,10 +1,10 @@
-//! Every tunable of the pipeline in one place, with the paper's names and defaults (paper §VI, SPEC §2).
+//! Every tunable of the pipeline in one place, with the paper's names and defaults (paper §VI, docs/pipeline.md).
 //!
 //! Parameters the paper leaves open carry the value chosen here and the reason in their doc comment.
 
 use crate::error::ParamError;
 
-/// Which method the mapper runs (SPEC §3): one switch each, same code path.
+/// Which method the mapper runs (docs/variants.md): one switch each, same code path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[derive(serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -94,7 +94,7 @@ pub const DEPTH_TOLERANCE_SIGMAS: f32 = 3.0;
 #[derive(serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Params {
-    /// Method variant (SPEC §3).
+    /// Method variant (docs/variants.md).
     pub variant: Variant,
 
     // --- 1. points -------------------------------------------------------------------------------------
@@ -202,7 +202,7 @@ pub struct Params {
     pub tau_lambda: f32,
     /// Smallest principal scales σ0, σ1 τ_s, metres (paper: 0.1125).
     pub tau_s: f32,
-    /// Grid of the bounded-plane occupancy g_p, metres (open in the paper; 0.05 as SPEC §2 suggests).
+    /// Grid of the bounded-plane occupancy g_p, metres (open in the paper; 0.05 m, docs/pipeline.md).
     pub g_p: f32,
 
     // --- 9. superquadrics --------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-//! Stage 9: superquadric fitting of semantic objects (paper §V-B, equations 11–13; SPEC §2.9).
+//! Stage 9: superquadric fitting of semantic objects (paper §V-B, equations 11–13; docs/pipeline.md, stage 9).
 //!
 //! The implicit function is F(x) = ((x/a1)^(2/ε2) + (y/a2)^(2/ε2))^(ε2/ε1) + (z/a3)^(2/ε1), each term computed
 //! as ((x/a)²)^(1/ε) so bases stay non-negative (squared ratios are capped at 10⁴ so far points stay finite).

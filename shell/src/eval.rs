@@ -1,4 +1,4 @@
-//! Evaluation metrics of SPEC §4 computed from a processed frame (the semantic fusion metrics N_adh and A_s,
+//! Evaluation metrics of docs/metrics.md computed from a processed frame (the semantic fusion metrics N_adh and A_s,
 //! G2R and R2G), and map-level metrics beside them that judge each variant's own map from all the surface
 //! samples of its primitives ([`MapSamples`]): free-space violation, superquadrics behind the support, map-level
 //! adhesion and, on synthetic sets, the distance to and the penetration of the true surfaces.
@@ -72,14 +72,14 @@ pub fn semantic_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>, referen
 /// How far behind the measured depth of its pixel a reconstruction sample must lie to count as hidden, metres.
 pub const OCCLUSION_MARGIN_M: f64 = 0.05;
 
-/// Reconstruction accuracy of one frame's map (SPEC §4), metres.
+/// Reconstruction accuracy of one frame's map (docs/metrics.md), metres.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ReconstructionMetrics {
     /// G2R RMSE: √mean over the reconstructed samples P̂ of the squared distance to the nearest observed point.
     pub g2r_rmse_m: f64,
     /// R2G RMSE: √mean over the observed points P of the squared distance to the nearest reconstructed sample.
     pub r2g_rmse_m: f64,
-    /// Diagnostic beside SPEC §4 (not the paper's metric): G2R over the samples that the observed depth does not
+    /// Diagnostic beside the paper's metrics (docs/metrics.md): G2R over the samples that the observed depth does not
     /// hide, i.e. without those lying more than [`OCCLUSION_MARGIN_M`] behind the measured depth of their pixel
     /// (e.g. the camera-facing contact face of an object pressed against another). Shows how much of the G2R
     /// is surface the camera cannot see.
@@ -139,7 +139,7 @@ pub fn observed_depth(frame: &Frame<'_>, u: usize, v: usize) -> Option<f32> {
 
 // --- Map-level metrics ---------------------------------------------------------------------------------------
 
-/// [`PrimSamples::kind`] of a bounded plane (the PLY `kind` codes of SPEC §6).
+/// [`PrimSamples::kind`] of a bounded plane (the PLY `kind` codes of docs/formats.md).
 pub const KIND_PLANE: u8 = 0;
 /// [`PrimSamples::kind`] of a superquadric.
 pub const KIND_SQ: u8 = 1;

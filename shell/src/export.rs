@@ -1,4 +1,4 @@
-//! PLY export of a frame's reconstructed map: the reconstruction samples of every primitive (SPEC §4) with
+//! PLY export of a frame's reconstructed map: the reconstruction samples of every primitive (docs/metrics.md) with
 //! `x y z` (metres; camera frame, or world frame with `--world` when the dataset has poses), `red green blue`,
 //! `primitive` (unique per primitive within the frame), `kind` (0 plane, 1 superquadric, 2 Gaussian) and
 //! `instance` (−1 when none). ASCII PLY, which CloudCompare, MeshLab and Open3D read.

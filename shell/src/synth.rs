@@ -53,7 +53,8 @@ pub enum Shape {
         /// Radius, metres.
         radius: f64,
     },
-    /// The superquadric F(x) = 1 of SPEC §2 ([`sq_inside_outside`]) in local coordinates x = R_z(yaw)ᵀ(p − centre).
+    /// The superquadric F(x) = 1 of docs/pipeline.md ([`sq_inside_outside`]) in local coordinates
+    /// x = R_z(yaw)ᵀ(p − centre).
     Superquadric {
         /// Centre, metres.
         centre: [f64; 3],
@@ -66,7 +67,7 @@ pub enum Shape {
     },
 }
 
-/// The superquadric inside-outside function of SPEC §2 at local coordinates `l` (metres):
+/// The superquadric inside-outside function of docs/pipeline.md at local coordinates `l` (metres):
 /// F = ((x/a1)^(2/ε2) + (y/a2)^(2/ε2))^(ε2/ε1) + (z/a3)^(2/ε1), each term computed as ((x/a)²)^(1/ε);
 /// 1 on the surface, < 1 inside. The f64 twin of `m2smap_core::superquadric::Superquadric::implicit` (which is
 /// f32 and caps far terms); the generator needs f64 to place surfaces to 10⁻⁷ m.
