@@ -191,7 +191,8 @@ pub fn accept(masks: &MaskSet<'_>, params: &Params, support: u32, best: Option<(
     let ratio = if support > 0 { inside as f32 / support as f32 } else { 0.0 };
     // ρ of the best candidate is kept even when it is refused: fusion uses it to hold back uncertain fragments.
     g.support_ratio = ratio;
-    let enough = support >= params.min_proj_points || ratio >= params.small_fragment_ratio;
+    let small_fragment = params.variant.extensions() && ratio >= params.small_fragment_ratio;
+    let enough = support >= params.min_proj_points || small_fragment;
     if enough && ratio > params.min_support_ratio && inst.score >= params.min_confidence {
         g.instance = inst.id;
         g.class = inst.class;

@@ -38,11 +38,11 @@ pub fn box_gap(a: &Gaussian, b: &Gaussian) -> f32 {
 /// max(`gmm_min_points`, `mask_split_min_share` · N) points, the same test that makes a Gaussian a candidate
 /// for the mask cut, or most of its points however few — that was neither annotated nor cut apart (too small,
 /// or mixed below voxel resolution). With semantic fusion it fuses with nothing, so object points are never
-/// glued to the background through it (an m2smap extension of ψ_s).
+/// glued to the background through it (an m2smap extension of ψ_s, off in [`crate::Variant::Paper`]).
 pub fn is_uncertain(g: &Gaussian, params: &Params) -> bool {
     let inside = g.support_ratio * g.count as f32;
     let share = g.support_ratio >= params.mask_split_min_share && inside >= params.gmm_min_points as f32;
-    g.instance == 0 && (share || g.support_ratio > 0.5)
+    params.variant.extensions() && g.instance == 0 && (share || g.support_ratio > 0.5)
 }
 
 /// The geometric predicate ψ_g of two Gaussians.

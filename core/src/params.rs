@@ -9,8 +9,11 @@ use crate::error::ParamError;
 #[derive(serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Variant {
-    /// M2-SMap as published.
+    /// M2-SMap with m2smap's extensions (mask slots in the voxels, the mask cut, held-back uncertain fragments,
+    /// annotated small fragments); the default.
     Full,
+    /// M2-SMap with the paper's rules only: `full` without the four extensions, so what each buys is measured.
+    Paper,
     /// Fusion ignores instance ids; labels are assigned after merging.
     Pmsao,
     /// No superquadric equivalence alignment before smoothing.
@@ -25,13 +28,14 @@ pub enum Variant {
 
 impl Variant {
     /// Every variant, in the order reports list them.
-    pub const ALL: [Variant; 6] =
-        [Variant::Full, Variant::Pmsao, Variant::Wsqa, Variant::Mmog, Variant::Mmp, Variant::Mmq];
+    pub const ALL: [Variant; 7] =
+        [Variant::Full, Variant::Paper, Variant::Pmsao, Variant::Wsqa, Variant::Mmog, Variant::Mmp, Variant::Mmq];
 
     /// The lower-case name used on the command line and in reports.
     pub fn name(self) -> &'static str {
         match self {
             Variant::Full => "full",
+            Variant::Paper => "paper",
             Variant::Pmsao => "pmsao",
             Variant::Wsqa => "wsqa",
             Variant::Mmog => "mmog",
@@ -42,19 +46,27 @@ impl Variant {
 
     /// Whether Gaussians are annotated with instance masks (every variant with semantics).
     pub fn annotates(self) -> bool {
-        matches!(self, Variant::Full | Variant::Pmsao | Variant::Wsqa)
+        matches!(self, Variant::Full | Variant::Paper | Variant::Pmsao | Variant::Wsqa)
+    }
+
+    /// Whether m2smap's extensions of the paper's annotation and fusion are on (every annotating variant but
+    /// [`Variant::Paper`]): mask slots and the mask cut (with `mask_split_min_share` < 1, see
+    /// [`Params::mask_consistent`]), held-back uncertain fragments ([`crate::fuse::is_uncertain`]) and annotated
+    /// small fragments (`small_fragment_ratio`).
+    pub fn extensions(self) -> bool {
+        self.annotates() && self != Variant::Paper
     }
 
     /// Whether fusion requires equal instance ids (ψ_s); otherwise labels are assigned after merging (PMSAO) or
     /// not at all.
     pub fn semantic_fusion(self) -> bool {
-        matches!(self, Variant::Full | Variant::Wsqa)
+        matches!(self, Variant::Full | Variant::Paper | Variant::Wsqa)
     }
 
     /// Whether objects are fitted with superquadrics and tracked (semantic objects, or for MMQ the objects
     /// allocated by geometry).
     pub fn superquadrics(self) -> bool {
-        matches!(self, Variant::Full | Variant::Pmsao | Variant::Wsqa | Variant::Mmq)
+        matches!(self, Variant::Full | Variant::Paper | Variant::Pmsao | Variant::Wsqa | Variant::Mmq)
     }
 
     /// Whether objects are allocated by geometry rather than by instance (MMQ): every fused cluster that is not
@@ -301,10 +313,11 @@ impl Default for Params {
 pub const VOXEL_GRID_HALF_EXTENT: i32 = 511;
 
 impl Params {
-    /// Whether the mask-consistent extensions are on: a variant with semantic fusion and
-    /// `mask_split_min_share` < 1 (mask slots in the voxels, the mask cut, held-back fragments).
+    /// Whether the mask-consistent extensions are on: a variant with [`Variant::extensions`] and
+    /// `mask_split_min_share` < 1 (mask slots in the voxels, the mask cut, held-back fragments). PMSAO has them
+    /// like `full`: it differs from `full` in post-merge annotation alone.
     pub fn mask_consistent(&self) -> bool {
-        self.variant.semantic_fusion() && self.mask_split_min_share < 1.0
+        self.variant.extensions() && self.mask_split_min_share < 1.0
     }
 
     /// Axial depth noise σ(z) of the sensor at depth `z`, metres.

@@ -26,7 +26,7 @@ struct Session<'a, 'm> {
 /// How `render` and `export` map: the variant, parameters and camera, as `run` takes them.
 #[derive(clap::Args)]
 struct MappingArgs {
-    /// Method variant: full, pmsao, wsqa, mmog, mmp, mmq.
+    /// Method variant: full, paper, pmsao, wsqa, mmog, mmp, mmq.
     #[arg(long)]
     variant: Option<String>,
     /// JSON file of `Params` fields to override.
@@ -125,7 +125,7 @@ enum Command {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
-        /// Method variant: full, pmsao, wsqa, mmog, mmp, mmq.
+        /// Method variant: full, paper, pmsao, wsqa, mmog, mmp, mmq.
         #[arg(long)]
         variant: Option<String>,
         /// Process at most N frames.
