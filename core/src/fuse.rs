@@ -14,6 +14,7 @@
 use crate::gmm::Gaussian;
 use crate::linalg::{self, Eigen3, Moments};
 use crate::params::Params;
+use crate::union_find;
 
 /// Counts of the fusion stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -57,31 +58,21 @@ pub fn geometric_link(a: &Gaussian, b: &Gaussian, cos_theta_min: f32, params: &P
     l_ab.min(l_ba) <= params.l_min && box_gap(a, b) <= params.d_connect
 }
 
-fn find(g: &mut [Gaussian], mut i: usize) -> usize {
-    for _ in 0..g.len() {
-        let p = g.get(i).map_or(i, |x| x.cluster as usize);
-        if p == i {
-            return i;
-        }
-        let gp = g.get(p).map_or(p, |x| x.cluster as usize);
-        if let Some(x) = g.get_mut(i) {
-            x.cluster = gp as u16;
-        }
-        i = gp;
+/// Fusion's union-find lives in the Gaussians' `cluster` field.
+impl union_find::Parents for [Gaussian] {
+    fn count(&self) -> usize {
+        self.len()
     }
-    i
-}
 
-fn union(g: &mut [Gaussian], a: usize, b: usize) -> bool {
-    let (ra, rb) = (find(g, a), find(g, b));
-    if ra == rb {
-        return false;
+    fn parent(&self, i: usize) -> usize {
+        self.get(i).map_or(i, |g| g.cluster as usize)
     }
-    let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
-    if let Some(x) = g.get_mut(hi) {
-        x.cluster = lo as u16;
+
+    fn set_parent(&mut self, i: usize, parent: usize) {
+        if let Some(g) = self.get_mut(i) {
+            g.cluster = parent as u16;
+        }
     }
-    true
 }
 
 /// Fuses the Gaussians; afterwards `cluster` holds compact cluster ids 0..C, numbered by their lowest Gaussian,
@@ -128,14 +119,14 @@ pub fn connect(
             stats.pair_tests += 1;
             if link(&a, &b) {
                 stats.links += 1;
-                union(gaussians, i as usize, j as usize);
+                union_find::union(gaussians, i as usize, j as usize);
             }
         }
     }
     // Point every Gaussian straight at its root, then number the roots in index order (`order` serves as the
     // root → id map meanwhile) and replace roots by ids.
     for i in 0..n {
-        let r = find(gaussians, i);
+        let r = union_find::find(gaussians, i);
         if let Some(g) = gaussians.get_mut(i) {
             g.cluster = r as u16;
         }

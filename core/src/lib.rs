@@ -62,6 +62,7 @@ pub mod snapshot;
 pub mod superquadric;
 pub mod supervoxel;
 pub mod track;
+pub mod union_find;
 pub mod wire;
 
 pub use error::{FrameError, MaskError, ParamError};

@@ -25,6 +25,7 @@ use crate::params::{Params, VOXEL_GRID_HALF_EXTENT};
 use crate::masks::{MaskSet, SlotCache};
 use crate::points;
 use crate::pool::{self, Bounded, Probe};
+use crate::union_find;
 
 /// Label of a voxel that no supervoxel has claimed (yet).
 pub const UNLABELLED: u16 = u16::MAX;
@@ -533,7 +534,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
         }
         for_each_neighbour(voxels, slots, v.key, |j| {
             if voxels.get(j).is_some_and(|nb| nb.supervoxel == UNLABELLED) {
-                union(scratch, i, j);
+                union_find::union(scratch, i, j);
             }
         });
     }
@@ -543,7 +544,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
         if v.supervoxel != UNLABELLED {
             continue;
         }
-        let root = find(scratch, i);
+        let root = union_find::find(scratch, i);
         if let Some(rv) = voxels.get_mut(root) {
             rv.gaussian = if root == i { 0 } else { rv.gaussian };
         }
@@ -553,7 +554,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
         if v.supervoxel != UNLABELLED {
             continue;
         }
-        let root = find(scratch, i);
+        let root = union_find::find(scratch, i);
         if let Some(rv) = voxels.get_mut(root) {
             rv.gaussian = rv.gaussian.saturating_add(v.count);
         }
@@ -563,7 +564,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
         if v.supervoxel != UNLABELLED {
             continue;
         }
-        let root = find(scratch, i);
+        let root = union_find::find(scratch, i);
         let Some(rv) = voxels.get(root).copied() else { continue };
         let label = if (rv.gaussian as u32) < params.gmm_min_points {
             stats.outlier_points += v.count as u32;
@@ -630,33 +631,5 @@ fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params
                 let _ = seeds.push(SeedCell { key, voxels: 1, best: i as u16, best_d2: d2 });
             }
         }
-    }
-}
-
-/// Root of `i` with path halving (bounded by the table length).
-fn find(parent: &mut [u16], mut i: usize) -> usize {
-    for _ in 0..parent.len() {
-        let p = parent.get(i).copied().unwrap_or(i as u16) as usize;
-        if p == i {
-            return i;
-        }
-        let gp = parent.get(p).copied().unwrap_or(p as u16);
-        if let Some(slot) = parent.get_mut(i) {
-            *slot = gp;
-        }
-        i = gp as usize;
-    }
-    i
-}
-
-/// Joins the sets of `a` and `b`; the lower root index becomes the root.
-fn union(parent: &mut [u16], a: usize, b: usize) {
-    let (ra, rb) = (find(parent, a), find(parent, b));
-    if ra == rb {
-        return;
-    }
-    let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
-    if let Some(slot) = parent.get_mut(hi) {
-        *slot = lo as u16;
     }
 }
