@@ -210,40 +210,6 @@ pub fn rotation_angle_between(a: &Mat3, b: &Mat3) -> f32 {
     libm::acosf(c)
 }
 
-/// Solves the N×N system A x = b in place by Gaussian elimination with partial pivoting; `b` becomes x.
-/// Returns false when A is singular.
-#[allow(clippy::indexing_slicing, clippy::needless_range_loop)] // all indices < N by the loop bounds
-pub fn solve<const N: usize>(a: &mut [[f32; N]; N], b: &mut [f32; N]) -> bool {
-    for col in 0..N {
-        let mut pivot = col;
-        for row in col + 1..N {
-            if libm::fabsf(a[row][col]) > libm::fabsf(a[pivot][col]) {
-                pivot = row;
-            }
-        }
-        if libm::fabsf(a[pivot][col]).is_nan() || libm::fabsf(a[pivot][col]) <= 1e-20 {
-            return false;
-        }
-        a.swap(col, pivot);
-        b.swap(col, pivot);
-        for row in col + 1..N {
-            let f = a[row][col] / a[col][col];
-            for k in col..N {
-                a[row][k] -= f * a[col][k];
-            }
-            b[row] -= f * b[col];
-        }
-    }
-    for col in (0..N).rev() {
-        let mut s = b[col];
-        for k in col + 1..N {
-            s -= a[col][k] * b[k];
-        }
-        b[col] = s / a[col][col];
-    }
-    b.iter().all(|x| x.is_finite())
-}
-
 /// Weighted first and second moments of a point set, accumulated relative to a reference point so that
 /// f32 sums stay precise far from the origin.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -939,22 +939,10 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         }
         let mut improved = false;
         for _attempt in 0..4 {
-            let mut a = [[0.0f32; SQ_PARAMS]; SQ_PARAMS];
-            for (x, y) in a.iter_mut().zip(&normal.jtj) {
-                for (u, v) in x.iter_mut().zip(y) {
-                    *u = *v;
-                }
-            }
-            for (k, row) in a.iter_mut().enumerate() {
-                if let Some(d) = row.get_mut(k) {
-                    *d += lambda * (*d + 1e-9);
-                }
-            }
-            let mut delta = normal.jtr.map(|g| -g);
-            if !linalg::solve(&mut a, &mut delta) {
+            let Some(delta) = damped_step(&normal.jtj, &normal.jtr, lambda) else {
                 lambda *= 10.0;
                 continue;
-            }
+            };
             let mut candidate = theta;
             for (t, d) in candidate.iter_mut().zip(delta) {
                 *t += d;
@@ -987,6 +975,26 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
 
 /// Rotation step of the numerical support-constraint Jacobian, radians.
 const ROTATION_STEP: f32 = 1e-3;
+
+/// The Levenberg–Marquardt step δ of the damped normal equations (JᵀJ + λ·diag(JᵀJ + 10⁻⁹)) δ = −Jᵀr, solved by
+/// nalgebra's Cholesky factorisation (the damped matrix is symmetric positive definite); `None` when the
+/// factorisation fails or the step is not finite, and the caller raises λ.
+/// `jtj` and `jtr` may be padded beyond [`SQ_PARAMS`] (the accumulation lanes); only the leading block is used.
+fn damped_step<const L: usize>(jtj: &[[f32; L]], jtr: &[f32], lambda: f32) -> Option<[f32; SQ_PARAMS]> {
+    let entry = |i: usize, j: usize| jtj.get(i).and_then(|row| row.get(j)).copied().unwrap_or(0.0);
+    let a = nalgebra::SMatrix::<f32, SQ_PARAMS, SQ_PARAMS>::from_fn(|i, j| {
+        let v = entry(i, j);
+        if i == j {
+            v + lambda * (v + 1e-9)
+        } else {
+            v
+        }
+    });
+    let b = nalgebra::SVector::<f32, SQ_PARAMS>::from_fn(|i, _| -jtr.get(i).copied().unwrap_or(0.0));
+    let x = a.cholesky()?.solve(&b);
+    let step: [f32; SQ_PARAMS] = core::array::from_fn(|i| x.get(i).copied().unwrap_or(f32::NAN));
+    step.iter().all(|v| v.is_finite()).then_some(step)
+}
 
 /// Fits a superquadric to `points` (camera frame) whose support has covariance eigen-frame `pca` (columns
 /// e0, e1, e2), kept out of the `evidence`'s free space and on its supports' side. `None` when there are too
