@@ -145,62 +145,39 @@ pub fn rotation_from_vector(r: Vec3) -> Mat3 {
     ]
 }
 
-/// Unit quaternion `[x, y, z, w]` of a rotation matrix (w ≥ 0).
-pub fn quat_from_matrix(m: &Mat3) -> [f32; 4] {
-    let tr = m[0][0] + m[1][1] + m[2][2];
-    let q = if tr > 0.0 {
-        let s = libm::sqrtf(tr + 1.0) * 2.0;
-        [(m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s, 0.25 * s]
-    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
-        let s = libm::sqrtf(1.0 + m[0][0] - m[1][1] - m[2][2]) * 2.0;
-        [0.25 * s, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s, (m[2][1] - m[1][2]) / s]
-    } else if m[1][1] > m[2][2] {
-        let s = libm::sqrtf(1.0 + m[1][1] - m[0][0] - m[2][2]) * 2.0;
-        [(m[0][1] + m[1][0]) / s, 0.25 * s, (m[1][2] + m[2][1]) / s, (m[0][2] - m[2][0]) / s]
-    } else {
-        let s = libm::sqrtf(1.0 + m[2][2] - m[0][0] - m[1][1]) * 2.0;
-        [(m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, 0.25 * s, (m[1][0] - m[0][1]) / s]
-    };
-    quat_normalize(if q[3] < 0.0 { [-q[0], -q[1], -q[2], -q[3]] } else { q })
+/// The rotation `m` as a glam matrix (glam stores columns).
+fn to_glam(m: &Mat3) -> glam::Mat3 {
+    glam::Mat3::from_cols(column(m, 0).into(), column(m, 1).into(), column(m, 2).into())
 }
 
-/// q / ‖q‖ (identity when zero).
+/// Unit quaternion `[x, y, z, w]` of a rotation matrix (w ≥ 0), through glam's `Quat::from_mat3`.
+pub fn quat_from_matrix(m: &Mat3) -> [f32; 4] {
+    let q = glam::Quat::from_mat3(&to_glam(m)).to_array();
+    quat_normalize(if q[3] < 0.0 { q.map(|x| -x) } else { q })
+}
+
+/// q / ‖q‖ (identity when zero or not finite).
 pub fn quat_normalize(q: [f32; 4]) -> [f32; 4] {
-    let n = libm::sqrtf(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if n > 1e-12 {
-        [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
+    let q = glam::Quat::from_array(q);
+    let n = q.length();
+    if n > 1e-12 && n.is_finite() {
+        (q / n).to_array()
     } else {
         [0.0, 0.0, 0.0, 1.0]
     }
 }
 
-/// Rotation matrix of a unit quaternion `[x, y, z, w]`.
+/// Rotation matrix of a unit quaternion `[x, y, z, w]` (normalised first), through glam's `Mat3::from_quat`.
 pub fn matrix_from_quat(q: [f32; 4]) -> Mat3 {
-    let [x, y, z, w] = quat_normalize(q);
-    [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
-    ]
+    let m = glam::Mat3::from_quat(glam::Quat::from_array(quat_normalize(q)));
+    from_columns(m.x_axis.into(), m.y_axis.into(), m.z_axis.into())
 }
 
-/// Spherical interpolation from `a` (t = 0) to `b` (t = 1) along the shortest path (b is negated when a·b < 0).
+/// Spherical interpolation from `a` (t = 0) to `b` (t = 1) along the shortest path, through glam's
+/// `Quat::slerp` (b is negated when a·b < 0; nearly equal rotations are interpolated linearly).
 pub fn slerp(a: [f32; 4], b: [f32; 4], t: f32) -> [f32; 4] {
-    let mut d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
-    let b = if d < 0.0 {
-        d = -d;
-        [-b[0], -b[1], -b[2], -b[3]]
-    } else {
-        b
-    };
-    let (wa, wb) = if d > 0.9995 {
-        (1.0 - t, t)
-    } else {
-        let theta = libm::acosf(d.min(1.0));
-        let s = libm::sinf(theta);
-        (libm::sinf((1.0 - t) * theta) / s, libm::sinf(t * theta) / s)
-    };
-    quat_normalize([wa * a[0] + wb * b[0], wa * a[1] + wb * b[1], wa * a[2] + wb * b[2], wa * a[3] + wb * b[3]])
+    let (a, b) = (glam::Quat::from_array(quat_normalize(a)), glam::Quat::from_array(quat_normalize(b)));
+    quat_normalize(a.slerp(b, t).to_array())
 }
 
 /// Angle of the rotation Aᵀ·B, radians (the geodesic distance between two rotations).

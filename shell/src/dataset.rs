@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
 use m2smap_core::{Frame, Intrinsics};
+use glam::{DMat3, DQuat, DVec3};
 use serde::{Deserialize, Serialize};
 
 /// Largest rgb/depth timestamp difference of an association, seconds (TUM's `associate.py` default).
@@ -65,14 +66,21 @@ pub struct Pose {
 }
 
 impl Pose {
+    /// The rotation as a glam quaternion (normalised; identity when zero or not finite).
+    fn quat(&self) -> DQuat {
+        let q = DQuat::from_array(self.q);
+        let n = q.length();
+        if n > 0.0 && n.is_finite() {
+            q / n
+        } else {
+            DQuat::IDENTITY
+        }
+    }
+
     /// Rotation matrix (row-major).
     pub fn rotation(&self) -> [[f64; 3]; 3] {
-        let [x, y, z, w] = self.q;
-        [
-            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-            [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-            [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
-        ]
+        let m = DMat3::from_quat(self.quat());
+        [0, 1, 2].map(|i| m.row(i).to_array())
     }
 
     /// The core's single-precision pose.
@@ -86,60 +94,20 @@ impl Pose {
 
     /// Maps a camera-frame point to the world frame.
     pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
-        let r = self.rotation();
-        let mut out = self.t;
-        for (o, row) in out.iter_mut().zip(r) {
-            *o += row[0] * p[0] + row[1] * p[1] + row[2] * p[2];
-        }
-        out
+        (self.quat() * DVec3::from_array(p) + DVec3::from_array(self.t)).to_array()
     }
 
     /// From a row-major rotation matrix and translation.
     pub fn from_matrix(r: [[f64; 3]; 3], t: [f64; 3]) -> Pose {
-        // Shepperd's method, choosing the largest pivot.
-        let tr = r[0][0] + r[1][1] + r[2][2];
-        let q = if tr > 0.0 {
-            let s = (tr + 1.0).sqrt() * 2.0;
-            [(r[2][1] - r[1][2]) / s, (r[0][2] - r[2][0]) / s, (r[1][0] - r[0][1]) / s, 0.25 * s]
-        } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
-            let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
-            [0.25 * s, (r[0][1] + r[1][0]) / s, (r[0][2] + r[2][0]) / s, (r[2][1] - r[1][2]) / s]
-        } else if r[1][1] > r[2][2] {
-            let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
-            [(r[0][1] + r[1][0]) / s, 0.25 * s, (r[1][2] + r[2][1]) / s, (r[0][2] - r[2][0]) / s]
-        } else {
-            let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
-            [(r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s, (r[1][0] - r[0][1]) / s]
-        };
-        Pose { t, q: normalize4(q) }
+        let m = DMat3::from_cols_array_2d(&r).transpose();
+        Pose { t, q: DQuat::from_mat3(&m).normalize().to_array() }
     }
 
-    /// Interpolates between `a` (at s = 0) and `b` (at s = 1): linear in translation, SLERP in rotation.
+    /// Interpolates between `a` (at s = 0) and `b` (at s = 1): linear in translation, SLERP in rotation (the
+    /// shortest way).
     pub fn interpolate(a: &Pose, b: &Pose, s: f64) -> Pose {
-        let t = [0, 1, 2].map(|k| a.t[k] + (b.t[k] - a.t[k]) * s);
-        let mut qb = b.q;
-        let mut d: f64 = (0..4).map(|k| a.q[k] * qb[k]).sum();
-        if d < 0.0 {
-            qb = qb.map(|x| -x);
-            d = -d;
-        }
-        let q = if d > 0.9995 {
-            normalize4([0, 1, 2, 3].map(|k| a.q[k] + (qb[k] - a.q[k]) * s))
-        } else {
-            let theta = d.clamp(-1.0, 1.0).acos();
-            let (wa, wb) = (((1.0 - s) * theta).sin() / theta.sin(), (s * theta).sin() / theta.sin());
-            normalize4([0, 1, 2, 3].map(|k| wa * a.q[k] + wb * qb[k]))
-        };
-        Pose { t, q }
-    }
-}
-
-fn normalize4(q: [f64; 4]) -> [f64; 4] {
-    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
-    if n > 0.0 {
-        q.map(|x| x / n)
-    } else {
-        [0.0, 0.0, 0.0, 1.0]
+        let t = DVec3::from_array(a.t).lerp(DVec3::from_array(b.t), s).to_array();
+        Pose { t, q: a.quat().slerp(b.quat(), s).normalize().to_array() }
     }
 }
 
@@ -254,7 +222,8 @@ pub fn parse_trajectory(text: &str) -> Result<Vec<(f64, Pose)>> {
         if v.iter().any(|x| !x.is_finite()) {
             bail!(" non-finite pose at timestamp {}", e.timestamp);
         }
-        out.push((e.timestamp, Pose { t: [v[0], v[1], v[2]], q: normalize4([v[3], v[4], v[5], v[6]]) }));
+        let q = Pose { t: [0.0; 3], q: [v[3], v[4], v[5], v[6]] }.quat().to_array();
+        out.push((e.timestamp, Pose { t: [v[0], v[1], v[2]], q }));
     }
     out.sort_by(|a, b| a.0.total_cmp(&b.0));
     Ok(out)
