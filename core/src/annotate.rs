@@ -230,22 +230,21 @@ pub fn cut_along_masks(
     hits: &[MaskHit],
     params: &Params,
 ) -> u32 {
-    let mut cuts = [Cut::default(); MAX_MASK_SPLITS];
-    let mut n_cuts = 0usize;
+    // At most MAX_MASK_SPLITS cuts a frame; a Gaussian beyond them stays whole (annotated as the paper does).
+    let mut cuts: heapless::Vec<Cut, MAX_MASK_SPLITS> = heapless::Vec::new();
     for (g, gauss) in gaussians.as_mut_slice().iter_mut().enumerate() {
         gauss.owner = 0;
         let Some((k, inside)) = best_match(masks, params, |k| hits_of(hits, g, k)) else { continue };
         let share = libm::ceilf(params.mask_split_min_share * gauss.count as f32) as u32;
         let least = params.gmm_min_points.max(share);
         if inside >= least && gauss.count.saturating_sub(inside) >= least {
-            if let Some(c) = cuts.get_mut(n_cuts) {
-                *c = Cut { gaussian: g as u16, instance: k as u8, inside_points: 0, new_gaussian: None };
-                n_cuts += 1;
-                gauss.owner = n_cuts as u8; // marks the Gaussian as cut number n_cuts (1-based) during this stage
+            let cut = Cut { gaussian: g as u16, instance: k as u8, inside_points: 0, new_gaussian: None };
+            if cuts.push(cut).is_ok() {
+                gauss.owner = cuts.len() as u8; // marks the Gaussian as cut number len (1-based) during this stage
             }
         }
     }
-    if n_cuts == 0 {
+    if cuts.is_empty() {
         return 0;
     }
     // Points inside the mask per voxel of a cut Gaussian.
@@ -274,7 +273,7 @@ pub fn cut_along_masks(
         }
     }
     let mut made = 0;
-    for cut in cuts.iter_mut().take(n_cuts) {
+    for cut in cuts.iter_mut() {
         let Some(g) = gaussians.get(cut.gaussian as usize).copied() else { continue };
         let outside = g.count.saturating_sub(cut.inside_points);
         if cut.inside_points < params.gmm_min_points || outside < params.gmm_min_points {

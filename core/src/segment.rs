@@ -59,8 +59,9 @@ pub fn segment(
     // 1. Supporting planes from purely geometric fusion.
     let cos_theta = libm::cosf(params.theta_min_deg.to_radians());
     fuse::connect(gaussians, order, params.d_connect, |a, b| fuse::geometric_link(a, b, cos_theta, params));
-    let mut planes: [(Vec3, Vec3); MAX_SUPPORT_PLANES] = [([0.0; 3], [0.0; 3]); MAX_SUPPORT_PLANES];
-    let mut n_planes = 0usize;
+    // (centre, normal) of at most MAX_SUPPORT_PLANES supports; beyond them a plane's Gaussians are still
+    // planes, only the attachment of thin Gaussians does not look at it.
+    let mut planes: heapless::Vec<(Vec3, Vec3), MAX_SUPPORT_PLANES> = heapless::Vec::new();
     fuse::for_each_cluster(gaussians, order, |gaussians, _, members| {
         let (m, e) = fuse::cluster_shape(gaussians, members);
         // Supporting structure is large: a cabinet's front is plane-shaped too, but not this long.
@@ -71,14 +72,10 @@ pub fn segment(
             }
         }
         if flat {
-            if let Some(slot) = planes.get_mut(n_planes) {
-                *slot = (m.mean(), e.normal());
-                n_planes += 1;
-            }
+            let _ = planes.push((m.mean(), e.normal()));
         }
     });
-    stats.planes = n_planes as u32;
-    let planes = planes.get(..n_planes).unwrap_or(&[]);
+    stats.planes = planes.len() as u32;
     for g in gaussians.iter_mut().filter(|g| g.role != ROLE_PLANE) {
         let n = g.axes[2];
         let thin = g.sigmas()[2] <= params.tau_t;
