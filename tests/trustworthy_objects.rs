@@ -65,9 +65,9 @@ fn ycbv_superquadrics_respect_free_space_and_the_table() {
     let Some(data) = shared_data("ycbv_0000") else { return };
     let dir = tempfile::tempdir().unwrap();
     let s = run_ok(&data, dir.path(), &[]);
-    // The target is 3 %; measured 6.4 % (the foam brick's fit leans to a diamond cross-section whose
-    // corners stand out of its silhouette), 9.6 % before the free-front rounds.
-    assert!(metric(&s, "free_space_violation_sq") <= 0.08, "free space {}", s["free_space_violation_sq"]);
+    // The target, 3 %: measured 1.1 % with ε ≤ 1.3 (`sq_eps_max`); with ε up to 1.9 the foam brick's fit
+    // leaned to a diamond cross-section whose corners stood out of its silhouette (6.4 %).
+    assert!(metric(&s, "free_space_violation_sq") <= 0.03, "free space {}", s["free_space_violation_sq"]);
     assert_eq!(metric(&s, "sq_behind_support"), 0.0, "superquadrics with > 2 % of their samples behind the table");
     assert!(metric(&s, "adhesion_map_sq") <= 0.1, "map-level adhesion of superquadrics {}", s["adhesion_map_sq"]);
     assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.5, "superquadrics per frame {}", s["primitives"]["sq"]);

@@ -428,12 +428,14 @@ fn model(theta: &Theta, r0: &Mat3) -> Superquadric {
     }
 }
 
-fn clamp(theta: &mut Theta) {
+/// Keeps the parameters in their bounds: every half-axis ≥ [`MIN_SCALE`], ε in [`EPS_RANGE`].0 to `eps_max`
+/// ([`Params::sq_eps_max`]).
+fn clamp(theta: &mut Theta, eps_max: f32) {
     for a in theta.iter_mut().take(3) {
         *a = a.max(MIN_SCALE);
     }
     for e in theta.iter_mut().skip(3).take(2) {
-        *e = e.clamp(EPS_RANGE.0, EPS_RANGE.1);
+        *e = e.clamp(EPS_RANGE.0, eps_max.min(EPS_RANGE.1));
     }
 }
 
@@ -848,7 +850,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
                 *x += *h;
             }
             let before = t;
-            clamp(&mut t);
+            clamp(&mut t, params.sq_eps_max);
             if t != before {
                 *h = -*h;
                 t = theta;
@@ -947,7 +949,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
             for (t, d) in candidate.iter_mut().zip(delta) {
                 *t += d;
             }
-            clamp(&mut candidate);
+            clamp(&mut candidate, params.sq_eps_max);
             let sq = model(&candidate, &run.base);
             let c = cost_keeping(&sq, prob, &mut kept);
             kept_model = None;
@@ -1085,7 +1087,7 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
     theta[..3].copy_from_slice(&start.scales);
     theta[3..5].copy_from_slice(if params.variant.ellipsoids_only() { &ELLIPSOID_EPS } else { &start.eps });
     theta[5..8].copy_from_slice(&start.centre);
-    clamp(&mut theta);
+    clamp(&mut theta, params.sq_eps_max);
     let mut run = Run {
         base: start.rotation,
         theta,
