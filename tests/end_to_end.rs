@@ -7,6 +7,7 @@ use std::path::Path;
 
 use common::{expect_failure, m2smap, run_ok, shared_data};
 use m2smap::dataset::{associate, parse_list, pose_at, read_list, read_trajectory, Dataset, Layout};
+use m2smap_core::HostStorage;
 
 fn frames_jsonl(out: &Path) -> Vec<serde_json::Value> {
     fs::read_to_string(out.join("frames.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()
@@ -28,15 +29,25 @@ fn check_run(summary: &serde_json::Value, frames: &[serde_json::Value], expected
     assert_eq!(summary["frames"].as_u64().unwrap() as usize, expected_frames);
     assert_eq!(frames.len(), expected_frames);
     assert!(summary["hz"].as_f64().unwrap() > 0.0);
+    assert_eq!(summary["profile"], "host", "run's default profile");
     for f in frames {
         assert!(f["supervoxels"].as_u64().unwrap() > 0);
         assert!(f["gaussians"].as_u64().unwrap() >= f["supervoxels"].as_u64().unwrap());
         let pools = f["pools"].as_object().unwrap();
-        for name in ["voxels", "voxel_slots", "voxel_scratch", "seed_cells", "supervoxels", "split_stack", "gaussians"] {
-            let p = &pools[name];
-            assert!(p["peak"].as_u64().unwrap() <= p["capacity"].as_u64().unwrap(), "{name}");
+        assert_eq!(pools.len(), HostStorage::POOLS.len());
+        for (id, capacity, _) in HostStorage::POOLS {
+            let p = &pools[id.name()];
+            let (peak, cap) = (p["peak"].as_u64().unwrap() as usize, p["capacity"].as_u64().unwrap() as usize);
+            assert_eq!(cap, capacity, "{}: the capacity of the host profile", id.name());
+            // A pool refuses an entry only when it is full.
+            if p["overflow_events"].as_u64().unwrap() > 0 {
+                assert_eq!(peak, capacity, "{} refused entries before it was full", id.name());
+            }
         }
-        assert_eq!(pools["gaussians"]["peak"], f["gaussians"]);
+        // Each stage's pool holds exactly the frame's count of that stage.
+        for (pool, count) in [("voxels", "voxels"), ("supervoxels", "supervoxels"), ("gaussians", "gaussians")] {
+            assert_eq!(pools[pool]["peak"], f[count], "{pool}");
+        }
     }
 }
 

@@ -1,4 +1,5 @@
-//! Renders and PLY exports: the PNG has four non-empty panels; PLY files load back with every vertex.
+//! Renders and PLY exports: the PNG's panels show the frame itself and a map that covers what it measured; PLY
+//! files load back with every vertex.
 
 mod common;
 
@@ -6,24 +7,57 @@ use std::path::Path;
 
 use common::m2smap;
 
-fn check_render(png: &Path) {
+/// Checks a 2 x 2 render of frame `k` of `dataset` (masks from its files, or from the geometric segmenter when
+/// `segmenter`) against that frame: (a) is the frame's own colour image, exactly, wherever no mask tints it;
+/// (b) and (c) show the frame darkened to 30 % wherever it has no depth in range, and are mostly drawn; (d), the
+/// ray-cast map, covers most of the pixels with depth in range.
+fn check_render(png: &Path, dataset: &Path, k: usize, segmenter: bool) {
+    use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
     let img = image::open(png).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (1280, 960), "2 x 2 panels of 640 x 480");
-    for (px, py) in [(0, 0), (640, 0), (0, 480), (640, 480)] {
-        // A panel is non-empty when, away from its legend strip, most of it is drawn (not black) in several colours.
-        let mut colours = std::collections::HashSet::new();
-        let (mut drawn, mut total) = (0, 0);
-        for y in (py + 40..py + 480).step_by(7) {
-            for x in (px..px + 640).step_by(7) {
-                let c = img.get_pixel(x, y).0;
-                colours.insert(c);
-                drawn += (c != [0, 0, 0]) as u32;
-                total += 1;
+    let d = m2smap::dataset::Dataset::open(dataset, None).unwrap();
+    // The frame and its masks as `render` maps them (a fresh mapper, that frame alone).
+    let mut storage = bytemuck::zeroed_box::<m2smap_core::HostStorage>();
+    let mut mapper = m2smap_core::Mapper::new(&mut *storage, m2smap_core::Params::default()).unwrap();
+    let dir = dataset.join("masks");
+    let source = if segmenter { MaskSource::Segmenter } else { MaskSource::Files(Some(&dir)) };
+    let mapped = map_frame(&mut mapper, &d, k, source, &mut Default::default(), &mut SegmenterBuffers::default()).unwrap();
+    let (f, masks) = (mapped.loaded, mapped.masks.expect("masks"));
+    let masked = |x: u32, y: u32| masks.id_at(x as u16, y as u16) != 0;
+    let (lo, hi) = f.view(&d.camera).raw_range(&m2smap_core::Params::default());
+    let rgb = |x: u32, y: u32| {
+        let i = 3 * (y * 640 + x) as usize;
+        [f.colour[i], f.colour[i + 1], f.colour[i + 2]]
+    };
+    let in_range = |x: u32, y: u32| (lo..=hi).contains(&f.depth[(y * 640 + x) as usize]);
+    // Away from the legend strips (the top 40 rows of each panel).
+    let pixels = || (40..480u32).flat_map(|y| (0..640u32).map(move |x| (x, y)));
+    // (a): the colour image itself where no mask tints it.
+    let unmasked: Vec<(u32, u32)> = pixels().filter(|&(x, y)| !masked(x, y)).collect();
+    let wrong = unmasked.iter().filter(|&&(x, y)| img.get_pixel(x, y).0 != rgb(x, y)).count();
+    assert!(unmasked.len() > 10_000 && wrong == 0, "panel (a): {wrong} of {} unmasked pixels are not the frame's colour", unmasked.len());
+    for (px, py) in [(640, 0), (0, 480)] {
+        // (b), (c): pixels without depth in range hold no label: the frame's colour darkened to 30 %.
+        let (mut no_depth, mut off) = (0, 0);
+        let mut drawn = 0;
+        for (x, y) in pixels() {
+            let c = img.get_pixel(px + x, py + y).0;
+            drawn += (c != [0, 0, 0]) as u32;
+            if !in_range(x, y) {
+                no_depth += 1;
+                off += rgb(x, y).iter().zip(c).any(|(&a, b)| (a as f32 * 0.3 - b as f32).abs() > 1.0) as u32;
             }
         }
-        assert!(colours.len() >= 3, "panel at ({px}, {py}) has only {} colours", colours.len());
-        assert!(drawn * 2 >= total, "panel at ({px}, {py}) is mostly empty: {drawn} of {total}");
+        assert_eq!(off, 0, "panel at ({px}, {py}): {off} of {no_depth} pixels without depth are not the darkened frame");
+        assert!(drawn * 2 >= 440 * 640, "panel at ({px}, {py}) is mostly empty: {drawn} pixels drawn");
     }
+    // (d): the map covers most of what the camera measured.
+    let measured: Vec<(u32, u32)> = pixels().filter(|&(x, y)| in_range(x, y)).collect();
+    let covered = measured.iter().filter(|&&(x, y)| img.get_pixel(640 + x, 480 + y).0 != [0, 0, 0]).count();
+    let share = covered as f64 / measured.len() as f64;
+    println!("{}: panel (d) covers {:.3} of {} pixels with depth", png.display(), share, measured.len());
+    // Measured: 0.97 (cabinet frame 10) to 0.996 (tabletop); an empty, shifted or mis-scaled map falls far below.
+    assert!(measured.len() > 10_000 && share >= 0.9, "panel (d) covers only {:.1} % of the pixels with depth", 100.0 * share);
 }
 
 #[test]
@@ -35,11 +69,11 @@ fn renders_and_exports_a_synthetic_frame() {
     let png = dir.path().join("f.png");
     let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--out", png.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    check_render(&png);
+    check_render(&png, &scene, 2, false);
     // Without masks the segmenter supplies them: the render still shows objects.
     let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "1", "--segmenter", "geometric", "--out", png.to_str().unwrap()]);
     assert!(o.status.success());
-    check_render(&png);
+    check_render(&png, &scene, 1, true);
 
     let ply = dir.path().join("f.ply");
     let o = m2smap(&["export", scene.to_str().unwrap(), "--frame", "2", "--ply", ply.to_str().unwrap()]);
@@ -79,7 +113,7 @@ fn renders_a_cabinet_frame() {
     let png = dir.path().join("cabinet.png");
     let o = m2smap(&["render", data.to_str().unwrap(), "--frame", "10", "--out", png.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    check_render(&png);
+    check_render(&png, &data, 10, false);
 }
 
 /// The instance-mask ids of frame `k` of a dataset folder (0 = none), row-major.
@@ -185,7 +219,7 @@ fn a_close_range_real_frame_shows_every_object_solid() {
     let png = dir.path().join("ycbv.png");
     let o = m2smap(&["render", data.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    check_render(&png);
+    check_render(&png, &data, 0, false);
     let img = image::open(&png).unwrap().to_rgb8();
     let per = map_panel_by_instance(&img, &mask_ids(&data, 0));
     assert!(per.len() >= 3, "{per:?}");

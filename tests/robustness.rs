@@ -15,7 +15,11 @@ fn jsonl(path: &std::path::Path) -> Vec<serde_json::Value> {
     fs::read_to_string(path).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()
 }
 
-fn check_faulted_run(dataset: &std::path::Path, seed: &str, min_kinds: usize) {
+/// `max_step_m`: the largest move of a track's centre in one update. Every object of these scenes is static,
+/// so an update moves its track by measurement noise only (measured: 1.2 cm on tabletop, 3.7 cm on the cabinet,
+/// faulted frames included); an update that dragged a track towards a wrong measurement moves it further (the
+/// association radius d_max = 0.35 m, which bounds every step by construction, would not notice).
+fn check_faulted_run(dataset: &std::path::Path, seed: &str, min_kinds: usize, max_step_m: f64) {
     let out = tempfile::tempdir().unwrap();
     let o = m2smap(&["run", dataset.to_str().unwrap(), "--out", out.path().to_str().unwrap(), "--faults", seed, "--fault-rate", "0.4"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -35,7 +39,7 @@ fn check_faulted_run(dataset: &std::path::Path, seed: &str, min_kinds: usize) {
             (f, Some(reason)) => panic!("unexpected rejection {f:?}: {reason}"),
         }
         let step = r["max_track_step_m"].as_f64().unwrap_or(0.0);
-        assert!(step <= Params::default().d_max as f64, "a track moved {step} m in one update");
+        assert!(step <= max_step_m, "a track of a static object moved {step} m in one update: {r}");
     }
     assert!(kinds.len() >= min_kinds, "the plan should exercise several fault kinds: {kinds:?}");
     assert_eq!(
@@ -50,9 +54,9 @@ fn stream_faults_are_reported_and_tracks_stay_sane() {
     let scene = dir.path().join("scene");
     let o = m2smap(&["synth", "--scene", "tabletop", "--frames", "14", "--out", scene.to_str().unwrap()]);
     assert!(o.status.success());
-    check_faulted_run(&scene, "3", 2);
+    check_faulted_run(&scene, "3", 2, 0.02);
     if let Some(data) = shared_data("tum_fr3_cabinet") {
-        check_faulted_run(&data, "7", 5);
+        check_faulted_run(&data, "7", 5, 0.05);
     }
 }
 
@@ -80,10 +84,18 @@ fn tiny_pools_overflow_gracefully_on_real_and_synthetic_frames() {
     for (frame, camera, masks) in &frames {
         let r = *mapper.process(frame.view(camera), masks.as_ref().map(|m| m.view())).unwrap();
         assert!(r.pool(PoolId::Voxels).overflow_events > 0 && r.dropped_points > 0);
-        assert!(r.overflow_events >= r.pool(PoolId::Voxels).overflow_events);
-        for id in PoolId::ALL {
+        // The voxel pool overflowed, so it is exactly full: the tiny profile's 512 voxels.
+        assert_eq!((r.voxels, r.pool(PoolId::Voxels).peak), (512, 512));
+        // Every point is mapped into a Gaussian, an outlier, or counted as dropped.
+        let mapped: u32 = mapper.gaussians().iter().map(|g| g.count).sum();
+        assert_eq!(mapped + r.outlier_points + r.dropped_points, r.points, "every point is mapped or accounted for");
+        for (id, capacity, _) in TinyStorage::POOLS {
             let u = r.pool(id);
-            assert!(u.peak <= u.capacity, "{} over capacity", id.name());
+            assert_eq!(u.capacity, capacity, "{}: the report's capacity is the profile's", id.name());
+            // A pool refuses an entry only when it is full.
+            if u.overflow_events > 0 {
+                assert_eq!(u.peak, capacity, "{} refused entries before it was full", id.name());
+            }
         }
         let n = mapper.encode_map(&mut buf).unwrap();
         let mut count = 0;

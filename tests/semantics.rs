@@ -1,7 +1,7 @@
 //! Stages 4–8 against ground truth: annotation, semantic fusion, flat planes and bounded planes on synthetic
 //! scenes with perfect masks (the ground-truth instance images).
 
-use m2smap::eval::semantic_metrics;
+use m2smap::eval::{fusion_metrics, semantic_metrics};
 use m2smap::masks::LabelTable;
 use m2smap::synth::{Scene, SynthFrame};
 use m2smap_core::gmm::{ROLE_OBJECT, ROLE_PLANE};
@@ -176,4 +176,63 @@ fn bounded_planes_cover_the_visible_floor_and_no_unobserved_cell() {
         println!("frame {k}: {} planes, floor coverage {coverage:.3}", planes.len());
         assert!(coverage >= 0.9, "the floor plane covers only {coverage:.3} of the visible floor's points");
     }
+}
+
+/// N_adh and A_s counted by hand on hand-built clusters (the counting that `semantic_metrics` does after it has
+/// tallied each Gaussian's points per reference label; label 0 = no object). A label is "strong" in a cluster
+/// when it holds ≥ max(20, ⌈10 % of the cluster's points⌉); N_adh counts the clusters with ≥ 2 strong labels,
+/// one of them an object; A_s is, among clusters of ≥ 2 Gaussians, the share whose Gaussians all have the same
+/// dominant label (most points; a tie goes to the smaller label).
+#[test]
+fn adhesion_and_semantic_consistency_counted_by_hand() {
+    use std::collections::HashMap;
+    let g = |pairs: &[(u16, u32)]| pairs.iter().copied().collect::<HashMap<u16, u32>>();
+    let gaussians: Vec<(u16, HashMap<u16, u32>)> = vec![
+        // Cluster 1: floor {0: 100} + box {3: 50, 0: 5}: 155 points, threshold max(20, ⌈15.5⌉) = 20; strong 0
+        // (105) and 3 (50) → adhesion. Dominants 0 and 3 → inconsistent.
+        (1, g(&[(0, 100)])),
+        (1, g(&[(3, 50), (0, 5)])),
+        // Cluster 2: {5: 100} + {5: 31, 6: 19}: 150 points, 10 % = 15 but the floor is 20: label 6 (19 points,
+        // 12.7 %) is not strong → no adhesion. Dominants 5, 5 → consistent.
+        (2, g(&[(5, 100)])),
+        (2, g(&[(5, 31), (6, 19)])),
+        // Cluster 3: one Gaussian {7: 60, 8: 40}: 100 points, threshold 20; 7 and 8 strong → adhesion. A single
+        // Gaussian: not counted by A_s.
+        (3, g(&[(7, 60), (8, 40)])),
+        // Cluster 4: {9: 360} + {10: 40}: 400 points, threshold ⌈40⌉ = 40; label 10 holds exactly 40 → strong →
+        // adhesion. Dominants 9 and 10 → inconsistent.
+        (4, g(&[(9, 360)])),
+        (4, g(&[(10, 40)])),
+        // Cluster 5: {2: 30, 4: 30} (a tie: dominant 2, the smaller label) + {2: 50}: 110 points, threshold 20;
+        // 2 (80) and 4 (30) strong → adhesion. Dominants 2, 2 → consistent.
+        (5, g(&[(2, 30), (4, 30)])),
+        (5, g(&[(2, 50)])),
+        // Cluster 6: {11: 400} + {11: 60, 0: 39}: 499 points, threshold ⌈49.9⌉ = 50; label 0 (39 points: above the
+        // 20-point floor, under 10 %) is not strong → no adhesion. Dominants 11, 11 → consistent.
+        (6, g(&[(11, 400)])),
+        (6, g(&[(11, 60), (0, 39)])),
+    ];
+    let m = fusion_metrics(gaussians.iter().map(|(c, counts)| (*c, counts)));
+    // N_adh: clusters 1, 3, 4, 5 = 4. Multi-Gaussian clusters: 1, 2, 4, 5, 6 = 5; consistent: 2, 5, 6 → A_s = 3/5.
+    assert_eq!(m.n_adh, 4);
+    assert_eq!(m.multi_gaussian_clusters, 5);
+    assert_eq!(m.a_s, Some(0.6));
+    // The order of the Gaussians does not matter.
+    let m_rev = fusion_metrics(gaussians.iter().rev().map(|(c, counts)| (*c, counts)));
+    assert_eq!(m_rev, m);
+    // One more point for label 6 in cluster 2 makes it strong (20 ≥ max(20, ⌈15.1⌉)): a fifth adhesion case;
+    // the dominants stay 5, 5.
+    let mut more = gaussians.clone();
+    *more[3].1.get_mut(&6).unwrap() += 1;
+    let m = fusion_metrics(more.iter().map(|(c, counts)| (*c, counts)));
+    assert_eq!((m.n_adh, m.a_s), (5, Some(0.6)));
+    // Breaking cluster 5's tie the other way (label 4 dominant in its first Gaussian) makes it inconsistent: 2/5.
+    let mut tie = gaussians.clone();
+    *tie[7].1.get_mut(&4).unwrap() += 1;
+    let m = fusion_metrics(tie.iter().map(|(c, counts)| (*c, counts)));
+    assert_eq!((m.n_adh, m.a_s), (4, Some(0.4)));
+    // No multi-Gaussian cluster: A_s is undefined; no clusters at all: nothing to count.
+    let m = fusion_metrics(gaussians[4..5].iter().map(|(c, counts)| (*c, counts)));
+    assert_eq!((m.n_adh, m.a_s, m.multi_gaussian_clusters), (1, None, 0));
+    assert_eq!(fusion_metrics(std::iter::empty()), Default::default());
 }

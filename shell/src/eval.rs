@@ -41,9 +41,15 @@ pub fn semantic_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>, referen
             *per_gaussian[v.gaussian as usize].entry(reference(p.u, p.v)).or_insert(0) += 1;
         }
     });
+    fusion_metrics(gaussians.iter().map(|g| g.cluster).zip(&per_gaussian))
+}
+
+/// The counting behind [`semantic_metrics`]: N_adh and A_s from, per Gaussian, its fused cluster and its points
+/// per reference label (0 = no object).
+pub fn fusion_metrics<'a>(gaussians: impl IntoIterator<Item = (u16, &'a HashMap<u16, u32>)>) -> SemanticMetrics {
     let mut clusters: HashMap<u16, (HashMap<u16, u32>, Vec<u16>)> = HashMap::new();
-    for (g, counts) in gaussians.iter().zip(&per_gaussian) {
-        let entry = clusters.entry(g.cluster).or_default();
+    for (cluster, counts) in gaussians {
+        let entry = clusters.entry(cluster).or_default();
         for (&l, &c) in counts {
             *entry.0.entry(l).or_insert(0) += c;
         }
