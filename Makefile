@@ -7,6 +7,9 @@ DEMO := target/demo
 SHARED := ../shared/data
 FW_FRAMES := $(CURDIR)/target/fw-frames
 FW_ELF := firmware/target/$(TARGET_MCU)/release/m2smap-firmware
+# The host decoder of the firmware's defmt log (its own workspace; built from here, so it targets the host).
+FW_DECODE_MANIFEST := firmware/defmt-decode/Cargo.toml
+FW_DECODE := firmware/defmt-decode/target/debug/m2smap-defmt-decode
 QEMU := timeout 600 qemu-system-arm -machine mps2-an500 -nographic -semihosting-config enable=on,target=native -icount shift=0
 
 .PHONY: demo test bench eval core-nostd budget firmware firmware-check fuzz
@@ -62,14 +65,24 @@ budget:
 	$(CARGO) run --release -q -p m2smap -- budget
 
 ## The core in a Cortex-M7 image (mcu profile, 512 KiB RAM region) on 3 real cabinet frames under QEMU mps2-an500:
-## map bytes must equal the host's (CRC per frame), instructions per frame and stage are printed.
+## map bytes must equal the host's (CRC per frame), instructions per frame and stage are printed, and the counting
+## global allocator (embedded-alloc) must have seen 0 heap allocations in every frame's pipeline.
+## The image logs through defmt over semihosting stdout (every line, the map CRC lines too: they are one short line
+## per frame, not bulk bytes); the raw stream is kept in target/fw-run.defmt and decoded by firmware/defmt-decode
+## (defmt-decoder, the library defmt-print is built on: about 1 min to build on 2 cores, `cargo install defmt-print` 4.5 min).
 firmware:
 	$(CARGO) run --release -q -p m2smap -- firmware-frames $(SHARED)/tum_fr3_cabinet --frames 3 --out $(FW_FRAMES)
 	cd firmware && M2SMAP_FRAMES=$(FW_FRAMES) $(CARGO) build --release --locked
+	$(CARGO) build -q --locked --manifest-path $(FW_DECODE_MANIFEST)
 	arm-none-eabi-size -A $(FW_ELF) | grep -E '^\.(vector_table|text|rodata|data|bss|frames) '
-	$(QEMU) -kernel $(FW_ELF) | tee target/fw-run.txt
+	@reserve=$$((16#$$(arm-none-eabi-nm $(FW_ELF) | awk '$$3 == "_stack_reserve" { print $$1 }'))); \
+		arm-none-eabi-size -A $(FW_ELF) | awk -v reserve=$$reserve '$$1 == ".data" || $$1 == ".bss" { ram += $$2 } \
+		END { printf "RAM: .data + .bss %d bytes + %d stack reserve = %d of 524288 bytes (%.1f %%)\n", ram, reserve, ram + reserve, (ram + reserve) / 5242.88 }'
+	$(QEMU) -kernel $(FW_ELF) | tee target/fw-run.defmt | $(FW_DECODE) $(FW_ELF) | tee target/fw-run.txt
 	grep '^frame [0-9]* map' target/fw-run.txt | diff -u $(FW_FRAMES)/expected.txt -
-	@echo "firmware: the Cortex-M7 maps equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames)"
+	@grep -qx 'heap allocations during process: 0' target/fw-run.txt || \
+		{ echo "firmware: FAILED: the core allocated on the heap during process (or the count is missing)"; exit 1; }
+	@echo "firmware: the Cortex-M7 maps equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"
 
 ## `make firmware` when QEMU and the shared frames are here; under CI their absence is an error.
 firmware-check:

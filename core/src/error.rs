@@ -4,6 +4,7 @@ use core::fmt;
 
 /// Why a frame was rejected. A rejected frame changes no state of the mapper.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FrameError {
     /// Width or height is zero.
     EmptyFrame,
@@ -47,6 +48,7 @@ pub enum FrameError {
 
 /// Why an instance-mask set was rejected.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum MaskError {
     /// The mask image size differs from the frame size.
     SizeMismatch {
@@ -83,6 +85,7 @@ pub enum MaskError {
 
 /// Why a parameter set was rejected by [`crate::Mapper::new`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ParamError {
     /// A parameter is out of its valid range; the name is the field name in [`crate::Params`].
     OutOfRange(&'static str),

@@ -48,6 +48,7 @@ impl<'a> CheckedFrame<'a> {
 
 /// What one frame produced and used.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FrameReport {
     /// Frames processed so far, this one included.
     pub frame: u32,

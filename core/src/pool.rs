@@ -70,6 +70,7 @@ impl PoolId {
 
 /// Use of one pool during one frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PoolUsage {
     /// Most entries in use at once during the frame.
     pub peak: usize,

@@ -1,19 +1,36 @@
 //! m2smap on a Cortex-M7: the whole pipeline with the `mcu` profile on real 640×480 cabinet frames embedded in
-//! the image, superquadric tracks across the frames, the map streamed through the wire encoder into a CRC.
+//! the image, superquadric tracks across the frames, the map streamed through the wire encoder (its trailer is
+//! the map's CRC-32).
 //! Prints, per frame, the map size and CRC (which must equal the host's, `expected.txt`) and the instructions
 //! each stage took, counted with QEMU's `-icount shift=0` (one instruction = 1 ns of virtual time) through SysTick.
+//!
+//! Every line goes out through defmt (`defmt-semihosting`: defmt frames on semihosting stdout, since RTT cannot be
+//! read under QEMU). The map lines go the same way: they are one size-and-CRC line per frame, not bulk bytes, and
+//! plain semihosting text on the same stdout would corrupt the defmt stream. `make firmware` decodes the stream with
+//! `firmware/defmt-decode` (the `defmt-decoder` library that `defmt-print` is built on) against this ELF.
+//!
+//! The global allocator is a 1 KiB `embedded-alloc` heap that counts every alloc and realloc. The image reads the
+//! count before and after each frame's pipeline (what `Mapper::process` runs, stage by stage, plus the map
+//! encoding), prints `heap allocations during process: N` and exits with failure unless N is 0.
 #![no_std]
 #![no_main]
 
+extern crate alloc;
+
+use core::alloc::{GlobalAlloc, Layout};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, AtomicUsize, Ordering};
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception, ExceptionFrame};
-use cortex_m_semihosting::{debug, hprintln};
+use cortex_m_semihosting::debug;
+use defmt_semihosting as _;
+use embedded_alloc::LlffHeap;
 use m2smap_core::wire::{self, WireError};
-use m2smap_core::{Frame, Instance, Intrinsics, MaskPixels, MaskSet, Mapper, McuStorage, Params, Pose};
+use m2smap_core::{
+    Frame, FrameError, FrameReport, Instance, Intrinsics, MaskPixels, MaskSet, Mapper, McuStorage, Params, Pose,
+};
 
 /// Byte arrays with 4-byte alignment, so raw depth can be viewed as `u16`.
 #[repr(C, align(4))]
@@ -36,6 +53,50 @@ mod frames {
 /// All pools of the mcu profile; zeroed bytes are a valid empty storage (`bytemuck::Zeroable`), so it lives in .bss.
 static mut STORAGE: MaybeUninit<McuStorage> = MaybeUninit::zeroed();
 
+/// Heap bytes. The core is `no_std` without `alloc`; this heap makes that observable: anything linked into the
+/// image that allocates (the core, a dependency, a future change) goes through the counting allocator below and
+/// fails `make firmware`. 1 KiB in .bss, inside the 512 KiB RAM budget (the counter's self-test uses 4 bytes of it).
+const HEAP_BYTES: usize = 1024;
+static mut HEAP_MEM: [MaybeUninit<u8>; HEAP_BYTES] = [MaybeUninit::uninit(); HEAP_BYTES];
+
+/// `embedded-alloc`'s linked-list heap, counting every allocation and reallocation.
+struct CountingHeap {
+    heap: LlffHeap,
+    allocations: AtomicUsize,
+}
+
+impl CountingHeap {
+    /// Allocations and reallocations so far.
+    fn allocations(&self) -> usize {
+        self.allocations.load(Ordering::SeqCst)
+    }
+}
+
+// SAFETY: every call is forwarded to `LlffHeap`, a sound global allocator; the counter only counts.
+unsafe impl GlobalAlloc for CountingHeap {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        self.allocations.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: forwarded with the caller's guarantees.
+        unsafe { self.heap.alloc(layout) }
+    }
+
+    // `alloc_zeroed` keeps its default, which calls `alloc` above: counted once.
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded with the caller's guarantees.
+        unsafe { self.heap.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        self.allocations.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: forwarded with the caller's guarantees.
+        unsafe { self.heap.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: CountingHeap = CountingHeap { heap: LlffHeap::empty(), allocations: AtomicUsize::new(0) };
+
 static SYSTICK_WRAPS: AtomicU32 = AtomicU32::new(0);
 const RELOAD: u32 = 0x00FF_FFFF;
 
@@ -44,18 +105,30 @@ fn SysTick() {
     SYSTICK_WRAPS.fetch_add(1, Ordering::Relaxed);
 }
 
+/// Set by the first fault or panic: a second one (say, inside the defmt logger) exits without logging.
+static FAILING: AtomicBool = AtomicBool::new(false);
+
+fn exit_failure() -> ! {
+    debug::exit(debug::EXIT_FAILURE);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
 #[exception]
 unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
-    hprintln!("hard fault at pc {:#010x}", frame.pc());
-    debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    if !FAILING.swap(true, Ordering::SeqCst) {
+        defmt::error!("hard fault at pc {=u32:#010x}", frame.pc());
+    }
+    exit_failure()
 }
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    hprintln!("panic: {}", info);
-    debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    if !FAILING.swap(true, Ordering::SeqCst) {
+        defmt::error!("panic: {}", defmt::Display2Format(info));
+    }
+    exit_failure()
 }
 
 /// SysTick ticks since start (24-bit counter extended by the wrap count).
@@ -78,9 +151,8 @@ fn spin(n: u32) {
 }
 
 fn fail(what: &str) -> ! {
-    hprintln!("error: {}", what);
-    debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    defmt::error!("error: {=str}", what);
+    exit_failure()
 }
 
 extern "C" {
@@ -116,9 +188,52 @@ fn stack_high_water() -> usize {
     }
 }
 
+/// Logs one frame's lines. Not inlined: the log calls stay out of `main`, where the pipeline is inlined, so how
+/// the image logs does not change the code that is measured.
+#[inline(never)]
+fn log_frame(i: usize, per_tick: f64, t: &[u64; 8], encoded: Result<usize, WireError>, last4: [u8; 4], report: &FrameReport) {
+    let n = match encoded {
+        Ok(n) => n,
+        Err(e) => {
+            defmt::error!("frame {} encode: {}", i, defmt::Debug2Format(&e));
+            exit_failure()
+        }
+    };
+    // The digest is the map's own trailer: the CRC-32 of everything before it.
+    let digest = u32::from_le_bytes(last4);
+    defmt::println!("frame {=usize} map {=usize} bytes crc {=u32:08x}", i, n, digest);
+    let ins = |a: usize, b: usize| ((t[b] - t[a]) as f64 * per_tick) as u64;
+    defmt::println!(
+        "frame {=usize} instructions total {=u64} voxels {=u64} supervoxels {=u64} gaussians {=u64} annotate {=u64} separate {=u64} superquadrics {=u64} encode {=u64}",
+        i, ins(0, 7), ins(0, 1), ins(1, 2), ins(2, 3), ins(3, 4), ins(4, 5), ins(5, 6), ins(6, 7)
+    );
+    defmt::println!(
+        "frame {=usize} gaussians {=u32} planes {=u32} sqs {=u32} gmms {=u32} overflow_events {=u32}",
+        i, report.gaussians, report.planes, report.sqs, report.gmms, report.overflow_events
+    );
+    // The whole report through the core's `defmt::Format` derive (feature `defmt`).
+    defmt::println!("frame {=usize} report {}", i, report);
+}
+
+#[cold]
+#[inline(never)]
+fn frame_rejected(i: usize, e: FrameError) -> ! {
+    defmt::error!("frame {} rejected: {}", i, e);
+    exit_failure()
+}
+
 #[entry]
 fn main() -> ! {
     paint_stack();
+    // SAFETY: called once, before any allocation; HEAP_MEM is used by nothing else.
+    unsafe { ALLOCATOR.heap.init(addr_of_mut!(HEAP_MEM) as usize, HEAP_BYTES) };
+    // The instrument must count: one allocation outside the frames has to move the counter by exactly one.
+    let before = ALLOCATOR.allocations();
+    let probe = core::hint::black_box(alloc::boxed::Box::new(core::hint::black_box(0x5a5a_u32)));
+    drop(probe);
+    if ALLOCATOR.allocations() != before + 1 {
+        fail("the counting allocator did not count a Box allocation");
+    }
     let Some(mut cp) = cortex_m::Peripherals::take() else { fail("peripherals") };
     cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(RELOAD);
@@ -135,15 +250,26 @@ fn main() -> ! {
     spin(CAL);
     let cal_ticks = (ticks() - t0).max(1);
     let per_tick = (2 * CAL as u64) as f64 / cal_ticks as f64;
-    hprintln!("calibration: {} instructions in {} ticks ({:.2} per tick)", 2 * CAL, cal_ticks, per_tick);
+    let centi = (per_tick * 100.0 + 0.5) as u32;
+    defmt::println!(
+        "calibration: {=u32} instructions in {=u64} ticks ({=u32}.{=u32:02} per tick)",
+        2 * CAL,
+        cal_ticks,
+        centi / 100,
+        centi % 100
+    );
 
     // SAFETY: `main` runs once and is the only user of STORAGE; all-zero bytes are a valid McuStorage.
     let storage: &'static mut McuStorage = unsafe { (*addr_of_mut!(STORAGE)).assume_init_mut() };
     let mut mapper = match Mapper::new(storage, Params::default()) {
         Ok(m) => m,
-        Err(_) => fail("parameters"),
+        Err(e) => {
+            defmt::error!("parameters rejected: {}", e);
+            exit_failure()
+        }
     };
     let mut scratch = [0u8; wire::MAX_PRIMITIVE_BYTES];
+    let mut allocations_in_process = 0usize;
     for (i, f) in frames::FRAMES.iter().enumerate() {
         let Ok(depth) = bytemuck::try_cast_slice::<u8, u16>(f.depth) else { fail("depth alignment") };
         let frame = Frame {
@@ -156,11 +282,14 @@ fn main() -> ! {
             pose: f.pose,
         };
         let masks = MaskSet { width: frames::WIDTH, height: frames::HEIGHT, instances: f.instances, pixels: MaskPixels::BitPlanes(f.masks) };
+        // What `Mapper::process` runs, stage by stage, then the map encoding: SysTick read at each stage boundary,
+        // the allocation count read before and after all of it (outside the timed window).
         let mut t = [0u64; 8];
+        let allocs_before = ALLOCATOR.allocations();
         t[0] = ticks();
         let checked = match mapper.check(frame, Some(masks)) {
             Ok(c) => c,
-            Err(_) => fail("frame rejected"),
+            Err(e) => frame_rejected(i, e),
         };
         mapper.stage_voxels(&checked);
         t[1] = ticks();
@@ -175,31 +304,30 @@ fn main() -> ! {
         mapper.stage_superquadrics(&checked);
         let report = *mapper.finish_frame();
         t[6] = ticks();
-        let mut crc = 0xFFFF_FFFFu32;
+        // The encoder ends the map with its CRC-32 (the core's one CRC); its last write is those four bytes.
         let mut last4 = [0u8; 4];
         let encoded = mapper.encode_map_streaming(&mut scratch, |bytes: &[u8]| -> Result<(), WireError> {
-            crc = wire::crc32_update(crc, bytes);
             if bytes.len() == 4 {
                 last4.copy_from_slice(bytes);
             }
             Ok(())
         });
         t[7] = ticks();
-        let Ok(n) = encoded else { fail("encode") };
-        // The digest is the map's own trailer: the CRC-32 of everything before it.
-        let digest = u32::from_le_bytes(last4);
-        hprintln!("frame {} map {} bytes crc {:08x}", i, n, digest);
-        let ins = |a: usize, b: usize| ((t[b] - t[a]) as f64 * per_tick) as u64;
-        hprintln!(
-            "frame {} instructions total {} voxels {} supervoxels {} gaussians {} annotate {} separate {} superquadrics {} encode {}",
-            i, ins(0, 7), ins(0, 1), ins(1, 2), ins(2, 3), ins(3, 4), ins(4, 5), ins(5, 6), ins(6, 7)
-        );
-        hprintln!(
-            "frame {} gaussians {} planes {} sqs {} gmms {} overflow_events {}",
-            i, report.gaussians, report.planes, report.sqs, report.gmms, report.overflow_events
-        );
+        allocations_in_process += ALLOCATOR.allocations() - allocs_before;
+        log_frame(i, per_tick, &t, encoded, last4, &report);
     }
-    hprintln!("stack high-water {} bytes; static RAM end {:#010x}", stack_high_water(), addr_of_mut!(__ebss) as usize);
+    defmt::println!("heap allocations during process: {=usize}", allocations_in_process);
+    defmt::println!(
+        "stack high-water {=usize} bytes; static RAM end {=usize:#010x} (heap {=usize} bytes)",
+        stack_high_water(),
+        addr_of_mut!(__ebss) as usize,
+        HEAP_BYTES
+    );
+    if allocations_in_process != 0 {
+        fail("the core allocated on the heap during process");
+    }
     debug::exit(debug::EXIT_SUCCESS);
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
