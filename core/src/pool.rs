@@ -1,4 +1,12 @@
 //! Fixed-capacity pools over caller-owned slices, with peak and overflow accounting.
+//!
+//! Why not `heapless::Vec` for these: the big pools (voxels, Gaussians, tracks …, see [`PoolId`]) live in the
+//! caller's storage ([`crate::Storage`]), one `Zeroable` block whose capacities come from the profile, so the
+//! firmware places them in a linker section and the host in one zeroed box; a `heapless::Vec<T, N>` would carry
+//! its capacity in the type and its length beside the items, and could not borrow a slice of that block.
+//! [`Bounded`] also counts what `heapless` does not: the peak (for `memory_budget.md`) and every refused push
+//! (reported per frame, never silent). The small lists the core keeps on its own stack for one stage (the mask
+//! cuts of a frame, the segmenter's support planes) are `heapless::Vec`.
 
 /// Every pool of the mapper. The order is the order of reports and of `memory_budget.md`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
