@@ -12,7 +12,7 @@ FW_DECODE_MANIFEST := firmware/defmt-decode/Cargo.toml
 FW_DECODE := firmware/defmt-decode/target/debug/m2smap-defmt-decode
 QEMU := timeout 600 qemu-system-arm -machine mps2-an500 -nographic -semihosting-config enable=on,target=native -icount shift=0
 
-.PHONY: demo test bench eval core-nostd budget firmware firmware-check fuzz
+.PHONY: demo test lint bench eval core-nostd budget firmware firmware-check fuzz
 FUZZ_SECONDS ?= 600
 FUZZ_TARGETS := wire_decode mapper_frame masks_parse lists_parse
 
@@ -30,13 +30,21 @@ demo:
 
 ## Every test: the no_std core for the Cortex-M7 target, the firmware under QEMU (when available), then the
 ## workspace tests (release: the real-data runs are fast).
-test: core-nostd firmware-check
+test: lint core-nostd firmware-check
 	@rm -f target/skipped-tests.txt
 	$(CARGO) test --release --workspace
 	@if [ -s target/skipped-tests.txt ]; then \
 		echo "make test: $$(wc -l < target/skipped-tests.txt) tests SKIPPED their real-data part (../shared/data is absent):"; \
 		sort target/skipped-tests.txt | sed 's/^/  /'; \
 	else echo "make test: no test skipped"; fi
+
+## Formatting (rustfmt.toml) of the workspace, the firmware and its decoder, and clippy with every warning an
+## error (the core's deny(clippy::indexing_slicing, ...) included) over every target of the workspace.
+lint:
+	$(CARGO) fmt --check
+	cd firmware && $(CARGO) fmt --check
+	cd firmware/defmt-decode && $(CARGO) fmt --check
+	$(CARGO) clippy --workspace --all-targets -- -D warnings
 
 ## The core must build for a bare-metal Cortex-M7 target: no std, no allocator.
 core-nostd:

@@ -15,8 +15,21 @@ fn frames_jsonl(out: &Path) -> Vec<serde_json::Value> {
 
 /// The summary.json keys that docs/formats.md names as the stable core of the file.
 const SUMMARY_KEYS: [&str; 15] = [
-    "frames", "variant", "hz", "ms_per_frame_median", "primitives", "payload_bytes", "g2r_rmse_m", "r2g_rmse_m",
-    "r_c", "a_s", "n_adh", "j_sq_deg", "pools", "overflow_events", "profile",
+    "frames",
+    "variant",
+    "hz",
+    "ms_per_frame_median",
+    "primitives",
+    "payload_bytes",
+    "g2r_rmse_m",
+    "r2g_rmse_m",
+    "r_c",
+    "a_s",
+    "n_adh",
+    "j_sq_deg",
+    "pools",
+    "overflow_events",
+    "profile",
 ];
 
 fn check_run(summary: &serde_json::Value, frames: &[serde_json::Value], expected_frames: usize) {
@@ -152,7 +165,17 @@ fn malformed_list_lines_name_their_line() {
 /// Writes a small synthetic TUM folder and returns its path.
 fn synth_folder(dir: &Path, frames: usize) -> std::path::PathBuf {
     let out = dir.join("scene");
-    let o = m2smap(&["synth", "--scene", "tabletop", "--frames", &frames.to_string(), "--seed", "3", "--out", out.to_str().unwrap()]);
+    let o = m2smap(&[
+        "synth",
+        "--scene",
+        "tabletop",
+        "--frames",
+        &frames.to_string(),
+        "--seed",
+        "3",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     out
 }
@@ -262,14 +285,17 @@ fn bad_config_and_variant_are_refused() {
     let cfg = dir.path().join("params.json");
     fs::write(&cfg, "{\"voxel_resolutoin\": 0.05}").unwrap();
     let out = dir.path().join("o");
-    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
+    let o =
+        m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("params.json"));
     fs::write(&cfg, "{\"depth_max\": -1.0}").unwrap();
-    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
+    let o =
+        m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("depth_max"));
     fs::write(&cfg, "{\"voxel_resolution\": 0.05}").unwrap();
-    let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
+    let o =
+        m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()]);
     assert!(o.status.success(), "a valid partial config is accepted");
     // The valid names are listed.
     expect_failure(
@@ -289,7 +315,10 @@ fn a_skipped_test_is_recorded_by_name() {
     let text = fs::read_to_string(&list).unwrap();
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines.len(), 2, "{text}");
-    assert!(lines[0].starts_with("a_skipped_test_is_recorded_by_name: ") && lines[0].ends_with("nowhere not found"), "{text}");
+    assert!(
+        lines[0].starts_with("a_skipped_test_is_recorded_by_name: ") && lines[0].ends_with("nowhere not found"),
+        "{text}"
+    );
 }
 
 /// The camera model's origin is printed and recorded in summary.json, and a preset that contradicts the TUM
@@ -345,7 +374,10 @@ fn export_and_render_take_the_variant_config_and_camera() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let text = fs::read(&ply).unwrap();
         let header = String::from_utf8_lossy(&text[..200.min(text.len())]).into_owned();
-        header.lines().find_map(|l| l.strip_prefix("element vertex ").map(|n| n.trim().parse::<usize>().unwrap())).unwrap()
+        header
+            .lines()
+            .find_map(|l| l.strip_prefix("element vertex ").map(|n| n.trim().parse::<usize>().unwrap()))
+            .unwrap()
     };
     let full = vertices(&[]);
     let mmog = vertices(&["--variant", "mmog"]);
@@ -353,9 +385,25 @@ fn export_and_render_take_the_variant_config_and_camera() {
     let cfg = dir.path().join("params.json");
     fs::write(&cfg, "{\"depth_max\": -1.0}").unwrap();
     let png = dir.path().join("f.png");
-    expect_failure(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--config", cfg.to_str().unwrap()], &["depth_max"]);
-    expect_failure(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--variant", "best"], &["one of full"]);
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--camera", "fr3"]);
+    expect_failure(
+        &[
+            "render",
+            scene.to_str().unwrap(),
+            "--frame",
+            "0",
+            "--out",
+            png.to_str().unwrap(),
+            "--config",
+            cfg.to_str().unwrap(),
+        ],
+        &["depth_max"],
+    );
+    expect_failure(
+        &["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--variant", "best"],
+        &["one of full"],
+    );
+    let o =
+        m2smap(&["render", scene.to_str().unwrap(), "--frame", "0", "--out", png.to_str().unwrap(), "--camera", "fr3"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
@@ -366,11 +414,20 @@ fn out_of_range_frames_and_unknown_cameras_say_what_is_valid() {
     let dir = tempfile::tempdir().unwrap();
     let scene = synth_folder(dir.path(), 3);
     let ply = dir.path().join("f.ply");
-    expect_failure(&["export", scene.to_str().unwrap(), "--frame", "5", "--ply", ply.to_str().unwrap()], &["--frame 5", "has 3"]);
+    expect_failure(
+        &["export", scene.to_str().unwrap(), "--frame", "5", "--ply", ply.to_str().unwrap()],
+        &["--frame 5", "has 3"],
+    );
     let png = dir.path().join("f.png");
-    expect_failure(&["render", scene.to_str().unwrap(), "--frame", "3", "--out", png.to_str().unwrap()], &["--frame 3", "has 3"]);
+    expect_failure(
+        &["render", scene.to_str().unwrap(), "--frame", "3", "--out", png.to_str().unwrap()],
+        &["--frame 3", "has 3"],
+    );
     let out = dir.path().join("o");
-    expect_failure(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--camera", "fr9"], &["fr9", "fr1, fr2, fr3"]);
+    expect_failure(
+        &["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--camera", "fr9"],
+        &["fr9", "fr1, fr2, fr3"],
+    );
 }
 
 /// Nothing to map is an error, not a summary of zeros: `--frames 0`, a dataset whose lists hold no frame, and a
@@ -383,7 +440,10 @@ fn nothing_to_map_is_an_error() {
     expect_failure(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "0"], &["--frames 0"]);
     let empty_masks = dir.path().join("no-masks");
     fs::create_dir_all(&empty_masks).unwrap();
-    expect_failure(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--masks", empty_masks.to_str().unwrap()], &["no-masks", "no masks"]);
+    expect_failure(
+        &["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--masks", empty_masks.to_str().unwrap()],
+        &["no-masks", "no masks"],
+    );
     // A dataset whose rgb.txt and depth.txt list no frames.
     let empty = dir.path().join("empty");
     copy_dir(&scene, &empty);
@@ -492,7 +552,10 @@ fn cabinet_is_one_tracked_superquadric_with_stable_size() {
                 p.for_each_sample(|x| {
                     let d = match sq {
                         Some(sq) => sq.distance(x).abs(),
-                        None => samples.iter().map(|y| m2smap_core::linalg::norm(m2smap_core::linalg::sub(x, *y))).fold(f32::MAX, f32::min),
+                        None => samples
+                            .iter()
+                            .map(|y| m2smap_core::linalg::norm(m2smap_core::linalg::sub(x, *y)))
+                            .fold(f32::MAX, f32::min),
                     };
                     worst_shift = worst_shift.max(d);
                 });
@@ -510,7 +573,11 @@ fn cabinet_is_one_tracked_superquadric_with_stable_size() {
             format!("{mean:.3} ± {sd:.3}")
         })
         .collect();
-    println!("cabinet half-axes (sorted, m): {}; wire quantisation moves samples by at most {:.2} mm", spread.join(", "), worst_shift * 1000.0);
+    println!(
+        "cabinet half-axes (sorted, m): {}; wire quantisation moves samples by at most {:.2} mm",
+        spread.join(", "),
+        worst_shift * 1000.0
+    );
     assert!(worst_shift < 1e-3);
 }
 
@@ -526,7 +593,9 @@ fn enlarge_dataset(from: &Path, to: &Path, k: u32, height: Option<u32>) {
         } else if path.extension().is_some_and(|x| x == "png") {
             let img = image::open(&path).unwrap();
             let h = height.unwrap_or(img.height() * k).min(img.height() * k);
-            let big = img.resize_exact(img.width() * k, img.height() * k, image::imageops::FilterType::Nearest).crop_imm(0, 0, img.width() * k, h);
+            let big = img
+                .resize_exact(img.width() * k, img.height() * k, image::imageops::FilterType::Nearest)
+                .crop_imm(0, 0, img.width() * k, h);
             big.save(&target).unwrap();
         } else if path.file_name().is_some_and(|n| n == "camera.json") {
             let mut c: serde_json::Value = serde_json::from_str(&fs::read_to_string(&path).unwrap()).unwrap();
@@ -540,7 +609,12 @@ fn enlarge_dataset(from: &Path, to: &Path, k: u32, height: Option<u32>) {
             let mut m: serde_json::Value = serde_json::from_str(&fs::read_to_string(&path).unwrap()).unwrap();
             for inst in m["instances"].as_array_mut().unwrap() {
                 let b: Vec<u64> = inst["bbox"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
-                inst["bbox"] = serde_json::json!([b[0] * k as u64, b[1] * k as u64, b[2] * k as u64 + k as u64 - 1, b[3] * k as u64 + k as u64 - 1]);
+                inst["bbox"] = serde_json::json!([
+                    b[0] * k as u64,
+                    b[1] * k as u64,
+                    b[2] * k as u64 + k as u64 - 1,
+                    b[3] * k as u64 + k as u64 - 1
+                ]);
             }
             fs::write(&target, m.to_string()).unwrap();
         } else {
@@ -573,16 +647,23 @@ fn large_frames_map_through_downscale() {
     let hd = dir.path().join("hd");
     enlarge_dataset(&scene, &hd, 3, Some(1080));
     let out = dir.path().join("c");
-    expect_failure(&["run", hd.to_str().unwrap(), "--out", out.to_str().unwrap()], &["2073600 pixels", "--downscale 2"]);
+    expect_failure(
+        &["run", hd.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        &["2073600 pixels", "--downscale 2"],
+    );
     let s = run_ok(&hd, &out, &["--downscale", "2"]);
     assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.0 && s["g2r_rmse_m"].as_f64().unwrap() < 0.05, "{s}");
     assert!(s["camera"].as_str().unwrap().contains("960×540 (--downscale 2 of 1920×1080)"), "{}", s["camera"]);
     // render and export take it too, and a factor out of range is refused.
     let png = dir.path().join("hd.png");
-    let o = m2smap(&["render", hd.to_str().unwrap(), "--frame", "1", "--downscale", "2", "--out", png.to_str().unwrap()]);
+    let o =
+        m2smap(&["render", hd.to_str().unwrap(), "--frame", "1", "--downscale", "2", "--out", png.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(image::open(&png).unwrap().to_rgb8().dimensions(), (1920, 1080), "2 × 2 panels of 960 × 540");
-    expect_failure(&["run", hd.to_str().unwrap(), "--out", out.to_str().unwrap(), "--downscale", "0"], &["--downscale 0"]);
+    expect_failure(
+        &["run", hd.to_str().unwrap(), "--out", out.to_str().unwrap(), "--downscale", "0"],
+        &["--downscale 0"],
+    );
 }
 
 /// `render` and `export` take `--profile` like `run`: the mcu profile's smaller pools give a different map of
@@ -593,15 +674,42 @@ fn render_and_export_take_the_profile() {
     let scene = synth_folder(dir.path(), 2);
     let (host, mcu) = (dir.path().join("host.ply"), dir.path().join("mcu.ply"));
     for (ply, profile) in [(&host, "host"), (&mcu, "mcu")] {
-        let o = m2smap(&["export", scene.to_str().unwrap(), "--frame", "1", "--profile", profile, "--ply", ply.to_str().unwrap()]);
+        let o = m2smap(&[
+            "export",
+            scene.to_str().unwrap(),
+            "--frame",
+            "1",
+            "--profile",
+            profile,
+            "--ply",
+            ply.to_str().unwrap(),
+        ]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     let (a, b) = (m2smap::export::read_ply_vertices(&host).unwrap(), m2smap::export::read_ply_vertices(&mcu).unwrap());
     assert!(!b.is_empty() && a.len() != b.len(), "host {} vs mcu {} vertices", a.len(), b.len());
     let png = dir.path().join("mcu.png");
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "1", "--profile", "mcu", "--out", png.to_str().unwrap()]);
+    let o = m2smap(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--frame",
+        "1",
+        "--profile",
+        "mcu",
+        "--out",
+        png.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = m2smap(&["export", scene.to_str().unwrap(), "--frame", "1", "--profile", "big", "--ply", host.to_str().unwrap()]);
+    let o = m2smap(&[
+        "export",
+        scene.to_str().unwrap(),
+        "--frame",
+        "1",
+        "--profile",
+        "big",
+        "--ply",
+        host.to_str().unwrap(),
+    ]);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && stderr.contains("'big'") && stderr.contains("host, mcu, tiny"), "{stderr}");
 }

@@ -67,7 +67,12 @@ fn describe(scene: &str, frame: usize, noise_seed: u32) -> String {
     let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
     let r = *mapper.process(f.frame.view(&scene.camera), None).unwrap();
     let mut s = String::new();
-    writeln!(s, "points {} voxels {} supervoxels {} gaussians {} outliers {}", r.points, r.voxels, r.supervoxels, r.gaussians, r.outlier_points).unwrap();
+    writeln!(
+        s,
+        "points {} voxels {} supervoxels {} gaussians {} outliers {}",
+        r.points, r.voxels, r.supervoxels, r.gaussians, r.outlier_points
+    )
+    .unwrap();
     writeln!(s, "overflow_events {} dropped_points {}", r.overflow_events, r.dropped_points).unwrap();
     writeln!(s, "digest {:016x}", fnv1a64(mapper.gaussians().iter().flat_map(gaussian_bytes))).unwrap();
     s
@@ -108,10 +113,19 @@ impl Pinned {
         let map = buf[..n].to_vec();
         let frame = wire::decode(&map, |_| {}).expect("the map decodes").frame;
         let kinds = [0, 1, 2].map(|kind| {
-            let of_kind = |p: &Primitive<'_>| matches!((kind, p), (0, Primitive::Plane(_)) | (1, Primitive::Sq(_)) | (2, Primitive::Gmm(_)));
+            let of_kind = |p: &Primitive<'_>| {
+                matches!((kind, p), (0, Primitive::Plane(_)) | (1, Primitive::Sq(_)) | (2, Primitive::Gmm(_)))
+            };
             let mut count = 0;
             mapper.for_each_primitive(|p| count += of_kind(p) as usize);
-            let n = wire::encode(&mut buf, frame, |sink| mapper.for_each_primitive(|p| if of_kind(p) { sink(p) })).unwrap();
+            let n = wire::encode(&mut buf, frame, |sink| {
+                mapper.for_each_primitive(|p| {
+                    if of_kind(p) {
+                        sink(p)
+                    }
+                })
+            })
+            .unwrap();
             (count, fnv1a64(buf[..n].iter().copied()))
         });
         let n = mapper.snapshot(&mut buf).unwrap();
@@ -195,7 +209,8 @@ fn check_sequence(sequence: &str, lines: &[(usize, String)]) -> Vec<String> {
         eprintln!("blessed {path}");
         return Vec::new();
     }
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|_| panic!("{path} missing: bless it with M2SMAP_BLESS=1"));
+    let text =
+        std::fs::read_to_string(&path).unwrap_or_else(|_| panic!("{path} missing: bless it with M2SMAP_BLESS=1"));
     let blessed: Vec<&str> = text.lines().filter(|l| !l.starts_with('#') && !l.trim().is_empty()).collect();
     let mut failures = Vec::new();
     for (k, got) in lines {
@@ -206,7 +221,11 @@ fn check_sequence(sequence: &str, lines: &[(usize, String)]) -> Vec<String> {
         }
     }
     if blessed.len() != lines.len() {
-        failures.push(format!("{path} pins {} frames, the test {}; re-bless with M2SMAP_BLESS=1 if intended", blessed.len(), lines.len()));
+        failures.push(format!(
+            "{path} pins {} frames, the test {}; re-bless with M2SMAP_BLESS=1 if intended",
+            blessed.len(),
+            lines.len()
+        ));
     }
     failures
 }
@@ -238,7 +257,10 @@ fn synthetic_sequences_pin_their_map_bytes_and_tracks() {
     for name in SYNTHETIC {
         let lines = synthetic_lines(name);
         // The fixtures must pin superquadric tracks, not just Gaussians.
-        assert!(lines.iter().any(|(_, l)| !l.contains("| tracks 0:")), "{name}: no superquadric track in frames 0–{LAST_FRAME}");
+        assert!(
+            lines.iter().any(|(_, l)| !l.contains("| tracks 0:")),
+            "{name}: no superquadric track in frames 0–{LAST_FRAME}"
+        );
         failures.extend(check_sequence(name, &lines));
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
@@ -279,16 +301,21 @@ fn a_one_bit_change_of_the_map_bytes_fails_the_comparison() {
     assert_eq!(compare("tabletop", 0, Some(&blessed), &pinned.line("tabletop", 0)), Ok(()));
     for bit in 0..pinned.map.len() * 8 {
         pinned.map[bit / 8] ^= 1 << (bit % 8);
-        let err = compare("tabletop", 0, Some(&blessed), &pinned.line("tabletop", 0)).expect_err("a flipped map bit must fail");
+        let err = compare("tabletop", 0, Some(&blessed), &pinned.line("tabletop", 0))
+            .expect_err("a flipped map bit must fail");
         if bit == pinned.map.len() * 4 {
             println!("bit {bit} of {} flipped:\n{err}", pinned.map.len() * 8);
         }
-        assert!(err.starts_with("map bytes changed for tabletop frame 0: ") && err.contains("re-bless with M2SMAP_BLESS=1"), "{err}");
+        assert!(
+            err.starts_with("map bytes changed for tabletop frame 0: ") && err.contains("re-bless with M2SMAP_BLESS=1"),
+            "{err}"
+        );
         pinned.map[bit / 8] ^= 1 << (bit % 8);
     }
     for bit in 0..pinned.snapshot.len() * 8 {
         pinned.snapshot[bit / 8] ^= 1 << (bit % 8);
-        let err = compare("tabletop", 0, Some(&blessed), &pinned.line("tabletop", 0)).expect_err("a flipped snapshot bit must fail");
+        let err = compare("tabletop", 0, Some(&blessed), &pinned.line("tabletop", 0))
+            .expect_err("a flipped snapshot bit must fail");
         assert!(err.starts_with("track snapshot changed for tabletop frame 0: "), "{err}");
         pinned.snapshot[bit / 8] ^= 1 << (bit % 8);
     }

@@ -74,7 +74,11 @@ fn malformed_id_masks_are_clear_errors() {
     expect_err(d, "size", 32, 8, "size.png: mask is 16x8 but the frame is 32x8");
     // An id in the image that the JSON does not list.
     write_ids(&d.join("missing.png"), 16, 8, &ids_16x8());
-    fs::write(d.join("missing.json"), r#"{"instances": [{"id": 1, "label": "a", "score": 0.9, "bbox": [2, 1, 5, 3]}]}"#).unwrap();
+    fs::write(
+        d.join("missing.json"),
+        r#"{"instances": [{"id": 1, "label": "a", "score": 0.9, "bbox": [2, 1, 5, 3]}]}"#,
+    )
+    .unwrap();
     expect_err(d, "missing", 16, 8, "mask id 7 has no entry");
     // Scores outside [0, 1].
     for (stem, score) in [("hi", "1.5"), ("neg", "-0.1")] {

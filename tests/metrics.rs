@@ -8,8 +8,8 @@ use std::fs;
 use common::m2smap;
 use m2smap::dataset::Pose;
 use m2smap::eval::{
-    adhesion_cases, behind_support, free_space, is_adhesion_case, map_samples, reconstruction_metrics, true_surface_metrics, MapSamples,
-    Observation, PrimSamples, KIND_SQ,
+    adhesion_cases, behind_support, free_space, is_adhesion_case, map_samples, reconstruction_metrics,
+    true_surface_metrics, MapSamples, Observation, PrimSamples, KIND_SQ,
 };
 use m2smap::synth::{Scene, Shape};
 use m2smap_core::{HostStorage, Mapper, Params, Variant};
@@ -26,7 +26,10 @@ fn g2r_and_r2g_measure_how_well_a_map_fits_its_frame() {
         let report = *mapper.process(view, None).unwrap();
         let checked = mapper.check(view, None).unwrap();
         let m = reconstruction_metrics(&mapper, &checked).unwrap();
-        println!("frame {k}: G2R {:.4} m, R2G {:.4} m ({} observed, {} reconstructed)", m.g2r_rmse_m, m.r2g_rmse_m, m.observed, m.reconstructed);
+        println!(
+            "frame {k}: G2R {:.4} m, R2G {:.4} m ({} observed, {} reconstructed)",
+            m.g2r_rmse_m, m.r2g_rmse_m, m.observed, m.reconstructed
+        );
         assert_eq!(m.observed as u32, report.points, "P is every sampled, range-filtered point");
         assert!(m.g2r_rmse_m > 0.0 && m.g2r_rmse_m <= 0.015, "G2R {:.4} m", m.g2r_rmse_m);
         assert!(m.r2g_rmse_m > m.g2r_rmse_m && m.r2g_rmse_m <= 0.06, "R2G {:.4} m", m.r2g_rmse_m);
@@ -141,7 +144,8 @@ fn run_writes_the_map_level_metrics() {
         let out = dir.path().join(variant);
         let o = m2smap(&["run", data.to_str().unwrap(), "--variant", variant, "--out", out.to_str().unwrap()]);
         assert!(o.status.success(), "run: {}", String::from_utf8_lossy(&o.stderr));
-        let summary: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+        let summary: serde_json::Value =
+            serde_json::from_str(&fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
         let frames: Vec<serde_json::Value> = fs::read_to_string(out.join("frames.jsonl"))
             .unwrap()
             .lines()

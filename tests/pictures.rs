@@ -21,7 +21,8 @@ fn check_render(png: &Path, dataset: &Path, k: usize, segmenter: bool) {
     let mut mapper = m2smap_core::Mapper::new(&mut *storage, m2smap_core::Params::default()).unwrap();
     let dir = dataset.join("masks");
     let source = if segmenter { MaskSource::Segmenter } else { MaskSource::Files(Some(&dir)) };
-    let mapped = map_frame(&mut mapper, &d, k, source, &mut Default::default(), &mut SegmenterBuffers::default()).unwrap();
+    let mapped =
+        map_frame(&mut mapper, &d, k, source, &mut Default::default(), &mut SegmenterBuffers::default()).unwrap();
     let (f, masks) = (mapped.loaded, mapped.masks.expect("masks"));
     let masked = |x: u32, y: u32| masks.id_at(x as u16, y as u16) != 0;
     let (lo, hi) = f.view(&d.camera).raw_range(&m2smap_core::Params::default());
@@ -35,7 +36,11 @@ fn check_render(png: &Path, dataset: &Path, k: usize, segmenter: bool) {
     // (a): the colour image itself where no mask tints it.
     let unmasked: Vec<(u32, u32)> = pixels().filter(|&(x, y)| !masked(x, y)).collect();
     let wrong = unmasked.iter().filter(|&&(x, y)| img.get_pixel(x, y).0 != rgb(x, y)).count();
-    assert!(unmasked.len() > 10_000 && wrong == 0, "panel (a): {wrong} of {} unmasked pixels are not the frame's colour", unmasked.len());
+    assert!(
+        unmasked.len() > 10_000 && wrong == 0,
+        "panel (a): {wrong} of {} unmasked pixels are not the frame's colour",
+        unmasked.len()
+    );
     for (px, py) in [(640, 0), (0, 480)] {
         // (b), (c): pixels without depth in range hold no label: the frame's colour darkened to 30 %.
         let (mut no_depth, mut off) = (0, 0);
@@ -48,7 +53,10 @@ fn check_render(png: &Path, dataset: &Path, k: usize, segmenter: bool) {
                 off += rgb(x, y).iter().zip(c).any(|(&a, b)| (a as f32 * 0.3 - b as f32).abs() > 1.0) as u32;
             }
         }
-        assert_eq!(off, 0, "panel at ({px}, {py}): {off} of {no_depth} pixels without depth are not the darkened frame");
+        assert_eq!(
+            off, 0,
+            "panel at ({px}, {py}): {off} of {no_depth} pixels without depth are not the darkened frame"
+        );
         assert!(drawn * 2 >= 440 * 640, "panel at ({px}, {py}) is mostly empty: {drawn} pixels drawn");
     }
     // (d): the map covers most of what the camera measured.
@@ -57,7 +65,11 @@ fn check_render(png: &Path, dataset: &Path, k: usize, segmenter: bool) {
     let share = covered as f64 / measured.len() as f64;
     println!("{}: panel (d) covers {:.3} of {} pixels with depth", png.display(), share, measured.len());
     // Measured: 0.97 (cabinet frame 10) to 0.996 (tabletop); an empty, shifted or mis-scaled map falls far below.
-    assert!(measured.len() > 10_000 && share >= 0.9, "panel (d) covers only {:.1} % of the pixels with depth", 100.0 * share);
+    assert!(
+        measured.len() > 10_000 && share >= 0.9,
+        "panel (d) covers only {:.1} % of the pixels with depth",
+        100.0 * share
+    );
 }
 
 #[test]
@@ -71,7 +83,16 @@ fn renders_and_exports_a_synthetic_frame() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     check_render(&png, &scene, 2, false);
     // Without masks the segmenter supplies them: the render still shows objects.
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "1", "--segmenter", "geometric", "--out", png.to_str().unwrap()]);
+    let o = m2smap(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--frame",
+        "1",
+        "--segmenter",
+        "geometric",
+        "--out",
+        png.to_str().unwrap(),
+    ]);
     assert!(o.status.success());
     check_render(&png, &scene, 1, true);
 
@@ -99,7 +120,8 @@ fn renders_and_exports_a_synthetic_frame() {
     assert_eq!(files.len(), 3);
     // The floor is z = 0 in the synthetic world: plane vertices in world coordinates lie on it.
     let world = m2smap::export::read_ply_vertices(&all.join("frame_000002.ply")).unwrap();
-    let mut floor: Vec<f64> = world.iter().filter(|v| v.kind == 0 && v.xyz[2].abs() < 0.1).map(|v| v.xyz[2].abs()).collect();
+    let mut floor: Vec<f64> =
+        world.iter().filter(|v| v.kind == 0 && v.xyz[2].abs() < 0.1).map(|v| v.xyz[2].abs()).collect();
     floor.sort_by(f64::total_cmp);
     assert!(floor.len() > 100, "floor plane vertices in world coordinates");
     let (median, p95) = (floor[floor.len() / 2], floor[floor.len() * 95 / 100]);
@@ -121,13 +143,17 @@ fn mask_ids(dataset: &Path, k: usize) -> Vec<u16> {
     let d = m2smap::dataset::Dataset::open(dataset, None).unwrap();
     let (w, h) = (d.camera.width, d.camera.height);
     let mut labels = m2smap::masks::LabelTable::default();
-    let masks = m2smap::masks::read_frame_masks(&dataset.join("masks"), &d.frames[k].stem, w, h, &mut labels).unwrap().unwrap();
+    let masks =
+        m2smap::masks::read_frame_masks(&dataset.join("masks"), &d.frames[k].stem, w, h, &mut labels).unwrap().unwrap();
     (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| masks.id_at(x, y)).collect()
 }
 
 /// Per mask instance of panel (d) (origin (640, 480)): (pixels, drawn, drawn as a superquadric: green the
 /// largest channel, distinct colours among its drawn pixels).
-fn map_panel_by_instance(img: &image::RgbImage, ids: &[u16]) -> std::collections::BTreeMap<u16, (usize, usize, usize, usize)> {
+fn map_panel_by_instance(
+    img: &image::RgbImage,
+    ids: &[u16],
+) -> std::collections::BTreeMap<u16, (usize, usize, usize, usize)> {
     let mut out = std::collections::BTreeMap::new();
     let mut shades: std::collections::BTreeMap<u16, std::collections::HashSet<[u8; 3]>> = Default::default();
     for (i, &id) in ids.iter().enumerate().filter(|(_, &id)| id != 0) {
@@ -152,7 +178,19 @@ fn map_panel_by_instance(img: &image::RgbImage, ids: &[u16]) -> std::collections
 fn the_map_panel_draws_objects_as_solid_shaded_shapes() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
-    assert!(m2smap(&["synth", "--scene", "tabletop", "--frames", "6", "--seed", "3", "--out", scene.to_str().unwrap()]).status.success());
+    assert!(m2smap(&[
+        "synth",
+        "--scene",
+        "tabletop",
+        "--frames",
+        "6",
+        "--seed",
+        "3",
+        "--out",
+        scene.to_str().unwrap()
+    ])
+    .status
+    .success());
     let png = dir.path().join("f.png");
     let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "5", "--out", png.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -166,7 +204,10 @@ fn the_map_panel_draws_objects_as_solid_shaded_shapes() {
         assert!(shades >= 20, "object {id}: {shades} shades (a shaded solid has many)");
     }
     // Panel (b): black only on borders between supervoxels (≈ 3 % of the panel), not on unsampled pixels.
-    let black = (20..480).flat_map(|y| (640..1280).map(move |x| (x, y))).filter(|&(x, y)| img.get_pixel(x, y).0 == [0, 0, 0]).count();
+    let black = (20..480)
+        .flat_map(|y| (640..1280).map(move |x| (x, y)))
+        .filter(|&(x, y)| img.get_pixel(x, y).0 == [0, 0, 0])
+        .count();
     let share = black as f64 / (460.0 * 640.0);
     assert!(share < 0.06, "panel (b) is {:.1} % black", 100.0 * share);
 }
@@ -177,19 +218,27 @@ fn the_map_panel_draws_objects_as_solid_shaded_shapes() {
 fn render_views_the_map_from_around_and_above() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
-    assert!(m2smap(&["synth", "--scene", "tabletop", "--frames", "3", "--out", scene.to_str().unwrap()]).status.success());
+    assert!(m2smap(&["synth", "--scene", "tabletop", "--frames", "3", "--out", scene.to_str().unwrap()])
+        .status
+        .success());
     let png = dir.path().join("v.png");
     let greens = |img: &image::RgbImage, x0: u32, y0: u32| {
-        (y0 + 20..y0 + 480).flat_map(|y| (x0..x0 + 640).map(move |x| (x, y))).filter(|&(x, y)| {
-            let c = img.get_pixel(x, y).0;
-            c[1] > c[0] && c[1] > c[2] && c[1] > 60
-        }).count()
+        (y0 + 20..y0 + 480)
+            .flat_map(|y| (x0..x0 + 640).map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                let c = img.get_pixel(x, y).0;
+                c[1] > c[0] && c[1] > c[2] && c[1] > 60
+            })
+            .count()
     };
     let camera = dir.path().join("c.png");
-    assert!(m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--out", camera.to_str().unwrap()]).status.success());
+    assert!(m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--out", camera.to_str().unwrap()])
+        .status
+        .success());
     let camera = image::open(&camera).unwrap().to_rgb8();
     let seen = greens(&camera, 640, 480);
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--view", "orbit", "--out", png.to_str().unwrap()]);
+    let o =
+        m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--view", "orbit", "--out", png.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let img = image::open(&png).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (1280, 960));
@@ -197,18 +246,48 @@ fn render_views_the_map_from_around_and_above() {
         let g = greens(&img, x0, y0);
         assert!(g > 2000, "orbit panel at ({x0}, {y0}): {g} superquadric pixels");
     }
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--view", "top", "--out", png.to_str().unwrap()]);
+    let o =
+        m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--view", "top", "--out", png.to_str().unwrap()]);
     assert!(o.status.success());
     let top = image::open(&png).unwrap().to_rgb8();
     assert_eq!(top.dimensions(), (640, 480));
     assert!(greens(&top, 0, 0) > 1000, "the boxes' tops seen from above");
-    let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", "2", "--view", "orbit", "--angle", "180", "--out", png.to_str().unwrap()]);
+    let o = m2smap(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--frame",
+        "2",
+        "--view",
+        "orbit",
+        "--angle",
+        "180",
+        "--out",
+        png.to_str().unwrap(),
+    ]);
     assert!(o.status.success());
     let back = image::open(&png).unwrap().to_rgb8();
     assert_eq!(back.dimensions(), (640, 480));
-    assert_ne!(back.as_raw(), image::imageops::crop_imm(&camera, 640, 480, 640, 480).to_image().as_raw(), "the back differs from the front");
+    assert_ne!(
+        back.as_raw(),
+        image::imageops::crop_imm(&camera, 640, 480, 640, 480).to_image().as_raw(),
+        "the back differs from the front"
+    );
     assert!(greens(&back, 0, 0) > 1000 && seen > 1000);
-    common::expect_failure(&["render", scene.to_str().unwrap(), "--frame", "2", "--view", "top", "--angle", "30", "--out", png.to_str().unwrap()], &["--angle"]);
+    common::expect_failure(
+        &[
+            "render",
+            scene.to_str().unwrap(),
+            "--frame",
+            "2",
+            "--view",
+            "top",
+            "--angle",
+            "30",
+            "--out",
+            png.to_str().unwrap(),
+        ],
+        &["--angle"],
+    );
 }
 
 /// `ycbv_0000` frame 0 (real, close range, ground-truth masks): panel (d) covers every masked object.
@@ -224,6 +303,9 @@ fn a_close_range_real_frame_shows_every_object_solid() {
     let per = map_panel_by_instance(&img, &mask_ids(&data, 0));
     assert!(per.len() >= 3, "{per:?}");
     for (id, (n, drawn, _, shades)) in per {
-        assert!(drawn as f64 >= 0.9 * n as f64 && shades >= 20, "object {id}: {drawn} of {n} pixels drawn, {shades} shades");
+        assert!(
+            drawn as f64 >= 0.9 * n as f64 && shades >= 20,
+            "object {id}: {drawn} of {n} pixels drawn, {shades} shades"
+        );
     }
 }

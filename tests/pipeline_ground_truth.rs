@@ -161,7 +161,8 @@ fn same_input_gives_identical_output() {
     assert_eq!(a.gaussians.len(), b.gaussians.len());
     for (x, y) in a.gaussians.iter().zip(&b.gaussians) {
         let bits = |g: &Gaussian| {
-            let mut v: Vec<u32> = g.mean.iter().chain(&g.covariance).chain(&g.eigenvalues).map(|f| f.to_bits()).collect();
+            let mut v: Vec<u32> =
+                g.mean.iter().chain(&g.covariance).chain(&g.eigenvalues).map(|f| f.to_bits()).collect();
             v.push(g.count);
             v
         };

@@ -75,7 +75,8 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
             let s = summary(&out, name, v);
             let row = &t1[&(method_name(v).to_string(), name.to_string())];
             let p = &s["primitives"];
-            let (sq, q) = if v == Variant::Mmq { ("0.000".into(), fmt(&p["sq"])) } else { (fmt(&p["sq"]), "0.000".into()) };
+            let (sq, q) =
+                if v == Variant::Mmq { ("0.000".into(), fmt(&p["sq"])) } else { (fmt(&p["sq"]), "0.000".into()) };
             assert_eq!(row[0], fmt(&p["plane"]), "{name} {v:?} planes");
             assert_eq!(row[1], sq, "{name} {v:?} SQ");
             assert_eq!(row[2], fmt(&p["gmm"]), "{name} {v:?} GMM");
@@ -138,7 +139,14 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
     for v in Variant::ALL {
         let s = summary(&out, "tabletop", v);
         let row = &t3[&(method_name(v).to_string(), "tabletop".to_string())];
-        for (cell, k) in row.iter().zip(["g2r_rmse_m", "g2r_unoccluded_rmse_m", "r2g_rmse_m", "payload_bytes", "bytes_per_primitive", "hz"]) {
+        for (cell, k) in row.iter().zip([
+            "g2r_rmse_m",
+            "g2r_unoccluded_rmse_m",
+            "r2g_rmse_m",
+            "payload_bytes",
+            "bytes_per_primitive",
+            "hz",
+        ]) {
             let expected = if k.ends_with("_m") { fmt_m(&s[k]) } else { fmt(&s[k]) };
             assert_eq!(*cell, expected, "tabletop {v:?} {k}");
         }

@@ -21,10 +21,20 @@ fn jsonl(path: &std::path::Path) -> Vec<serde_json::Value> {
 /// association radius d_max = 0.35 m, which bounds every step by construction, would not notice).
 fn check_faulted_run(dataset: &std::path::Path, seed: &str, min_kinds: usize, max_step_m: f64) {
     let out = tempfile::tempdir().unwrap();
-    let o = m2smap(&["run", dataset.to_str().unwrap(), "--out", out.path().to_str().unwrap(), "--faults", seed, "--fault-rate", "0.4"]);
+    let o = m2smap(&[
+        "run",
+        dataset.to_str().unwrap(),
+        "--out",
+        out.path().to_str().unwrap(),
+        "--faults",
+        seed,
+        "--fault-rate",
+        "0.4",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let rows = jsonl(&out.path().join("frames.jsonl"));
-    let summary: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.path().join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(out.path().join("summary.json")).unwrap()).unwrap();
     let mut kinds = std::collections::HashSet::new();
     for r in &rows {
         let fault = r["fault"].as_str();
@@ -63,13 +73,14 @@ fn stream_faults_are_reported_and_tracks_stay_sane() {
 #[test]
 fn tiny_pools_overflow_gracefully_on_real_and_synthetic_frames() {
     let scene = m2smap::synth::Scene::named("desk").unwrap();
-    let mut frames: Vec<(m2smap::dataset::LoadedFrame, m2smap::dataset::Camera, Option<m2smap::masks::FrameMasks>)> = (0..3)
-        .map(|k| {
-            let f = scene.render(k, Some(1));
-            let masks = scene.perfect_masks(&f, &mut LabelTable::default());
-            (f.frame, scene.camera, Some(masks))
-        })
-        .collect();
+    let mut frames: Vec<(m2smap::dataset::LoadedFrame, m2smap::dataset::Camera, Option<m2smap::masks::FrameMasks>)> =
+        (0..3)
+            .map(|k| {
+                let f = scene.render(k, Some(1));
+                let masks = scene.perfect_masks(&f, &mut LabelTable::default());
+                (f.frame, scene.camera, Some(masks))
+            })
+            .collect();
     if let Some(data) = shared_data("tum_fr3_cabinet") {
         let d = Dataset::open(&data, None).unwrap();
         let mut labels = LabelTable::default();
@@ -110,7 +121,12 @@ fn a_restored_snapshot_resumes_with_identical_maps() {
     let d = Dataset::open(&data, None).unwrap();
     let mut labels = LabelTable::default();
     let inputs: Vec<_> = (0..d.frames.len())
-        .map(|k| (d.load(k).unwrap(), read_frame_masks(&data.join("masks"), &d.frames[k].stem, 640, 480, &mut labels).unwrap()))
+        .map(|k| {
+            (
+                d.load(k).unwrap(),
+                read_frame_masks(&data.join("masks"), &d.frames[k].stem, 640, 480, &mut labels).unwrap(),
+            )
+        })
         .collect();
     let run = |mapper: &mut Mapper<'_>, k: usize, buf: &mut [u8]| -> usize {
         let (f, m) = &inputs[k];

@@ -27,10 +27,8 @@ fn score(gt: &[u16], pred: &[u16], instances: &[Instance]) -> (Vec<f64>, usize) 
     ids.sort_unstable();
     ids.dedup();
     let visible: Vec<u16> = ids.into_iter().filter(|&id| gt.iter().filter(|&&g| g == id).count() >= 300).collect();
-    let best: Vec<f64> = visible
-        .iter()
-        .map(|&g| instances.iter().map(|i| iou(gt, g, pred, i.id)).fold(0.0, f64::max))
-        .collect();
+    let best: Vec<f64> =
+        visible.iter().map(|&g| instances.iter().map(|i| iou(gt, g, pred, i.id)).fold(0.0, f64::max)).collect();
     let matched = instances.iter().filter(|i| visible.iter().any(|&g| iou(gt, g, pred, i.id) >= 0.5)).count();
     (best, matched)
 }
@@ -70,7 +68,10 @@ fn finds_objects_that_stand_apart_and_keeps_them_unglued() {
     let recall = ious.iter().filter(|&&x| x >= 0.7).count() as f64 / ious.len() as f64;
     let precision = matched as f64 / predicted.max(1) as f64;
     let mean_iou = ious.iter().sum::<f64>() / ious.len() as f64;
-    println!("tabletop: {} objects, recall@0.7 {recall:.2}, precision@0.5 {precision:.2}, mean IoU {mean_iou:.3}", ious.len());
+    println!(
+        "tabletop: {} objects, recall@0.7 {recall:.2}, precision@0.5 {precision:.2}, mean IoU {mean_iou:.3}",
+        ious.len()
+    );
     assert!(recall >= 0.9, "segmenter recall {recall:.2} at IoU 0.7");
     assert!(precision >= 0.9, "segmenter precision {precision:.2}");
 }
@@ -85,8 +86,11 @@ fn segments_the_cabinet_like_its_masks() {
     let mut ious = Vec::new();
     for k in (0..d.frames.len()).step_by(4) {
         let frame = d.load(k).unwrap();
-        let masks = m2smap::masks::read_frame_masks(&data.join("masks"), &d.frames[k].stem, 640, 480, &mut labels).unwrap().unwrap();
-        let reference: Vec<u16> = (0..480u16).flat_map(|v| (0..640u16).map(move |u| (u, v))).map(|(u, v)| masks.id_at(u, v)).collect();
+        let masks = m2smap::masks::read_frame_masks(&data.join("masks"), &d.frames[k].stem, 640, 480, &mut labels)
+            .unwrap()
+            .unwrap();
+        let reference: Vec<u16> =
+            (0..480u16).flat_map(|v| (0..640u16).map(move |u| (u, v))).map(|(u, v)| masks.id_at(u, v)).collect();
         let mut ids = vec![0u16; reference.len()];
         let mut instances = [Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; 16];
         let (_, n) = mapper.process_segmented(frame.view(&d.camera), &mut ids, &mut instances, 0).unwrap();

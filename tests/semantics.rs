@@ -30,7 +30,8 @@ fn map(scene: &Scene, frame: &SynthFrame, variant: Variant, with_masks: bool) ->
     let metrics = semantic_metrics(&mapper, &checked, |u, v| gt[v as usize * w + u as usize]);
     let mut samples = Vec::new();
     mapper.for_each_labelled_point(&checked, |p, v| {
-        if let Some(g) = v.filter(|v| is_assigned(v.gaussian)).and_then(|v| mapper.gaussians().get(v.gaussian as usize)) {
+        if let Some(g) = v.filter(|v| is_assigned(v.gaussian)).and_then(|v| mapper.gaussians().get(v.gaussian as usize))
+        {
             samples.push((gt[p.v as usize * w + p.u as usize], g.role, g.instance));
         }
     });

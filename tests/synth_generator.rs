@@ -40,7 +40,11 @@ fn to_camera(scene: &Scene, k: usize, p: [f64; 3]) -> [f64; 3] {
     let pose = scene.pose(k);
     let r = pose.rotation();
     let d = sub(p, pose.t);
-    [r[0][0] * d[0] + r[1][0] * d[1] + r[2][0] * d[2], r[0][1] * d[0] + r[1][1] * d[1] + r[2][1] * d[2], r[0][2] * d[0] + r[1][2] * d[1] + r[2][2] * d[2]]
+    [
+        r[0][0] * d[0] + r[1][0] * d[1] + r[2][0] * d[2],
+        r[0][1] * d[0] + r[1][1] * d[1] + r[2][1] * d[2],
+        r[0][2] * d[0] + r[1][2] * d[1] + r[2][2] * d[2],
+    ]
 }
 
 /// World direction `d` in the camera frame of frame `k`.
@@ -94,7 +98,9 @@ fn exact_depth_matches_closed_form_geometry() {
     let scene = one_shape_scene(Shape::Sphere { centre: c, radius: r });
     for k in [0, 7] {
         let (worst, disagree, hits) = compare(&scene, k, |ray| ray_sphere(ray, to_camera(&scene, k, c), r));
-        println!("sphere frame {k}: {hits} pixels hit, max depth error {worst:.3e} m, {disagree} silhouette pixels disagree");
+        println!(
+            "sphere frame {k}: {hits} pixels hit, max depth error {worst:.3e} m, {disagree} silhouette pixels disagree"
+        );
         assert!(hits > 2000 && worst <= 1e-4 && disagree <= 8, "sphere frame {k}: {worst} m, {disagree} disagree");
     }
 
@@ -117,7 +123,8 @@ fn exact_depth_matches_closed_form_geometry() {
                     }
                     let s = dot(n, p0) / denom;
                     let p = ray.map(|x| x * s);
-                    let inside = (0..3).filter(|&b| b != a).all(|b| dot(sub(p, centre_c), axes[b]).abs() <= half[b] + 1e-9);
+                    let inside =
+                        (0..3).filter(|&b| b != a).all(|b| dot(sub(p, centre_c), axes[b]).abs() <= half[b] + 1e-9);
                     if s > 0.0 && inside && best.filter(|&t| t <= s).is_none() {
                         best = Some(s);
                     }
@@ -125,7 +132,9 @@ fn exact_depth_matches_closed_form_geometry() {
             }
             best
         });
-        println!("box frame {k}: {hits} pixels hit, max depth error {worst:.3e} m, {disagree} silhouette pixels disagree");
+        println!(
+            "box frame {k}: {hits} pixels hit, max depth error {worst:.3e} m, {disagree} silhouette pixels disagree"
+        );
         assert!(hits > 2000 && worst <= 1e-4 && disagree <= 8, "box frame {k}: {worst} m, {disagree} disagree");
     }
 
@@ -139,7 +148,8 @@ fn exact_depth_matches_closed_form_geometry() {
             let d = [0, 1, 2].map(|j| dot(r[j], ray)); // world direction with camera z = 1
             let o = sub(pose.t, centre);
             let mut best: Option<f64> = None;
-            let (a, b, c) = (d[0] * d[0] + d[1] * d[1], o[0] * d[0] + o[1] * d[1], o[0] * o[0] + o[1] * o[1] - radius * radius);
+            let (a, b, c) =
+                (d[0] * d[0] + d[1] * d[1], o[0] * d[0] + o[1] * d[1], o[0] * o[0] + o[1] * o[1] - radius * radius);
             if b * b - a * c >= 0.0 {
                 let s = (-b - (b * b - a * c).sqrt()) / a;
                 if s > 0.0 && (o[2] + s * d[2]).abs() <= hh {
@@ -164,7 +174,8 @@ fn exact_depth_matches_closed_form_geometry() {
         let pose = scene.pose(k);
         let r = pose.rotation();
         let (c, s) = (f64::cos(yaw), f64::sin(yaw));
-        let local = |v: [f64; 3]| [(c * v[0] + s * v[1]) / scales[0], (-s * v[0] + c * v[1]) / scales[1], v[2] / scales[2]];
+        let local =
+            |v: [f64; 3]| [(c * v[0] + s * v[1]) / scales[0], (-s * v[0] + c * v[1]) / scales[1], v[2] / scales[2]];
         let o = local(sub(pose.t, centre));
         let (worst, disagree, hits) = compare(&scene, k, |ray| {
             let d = local([0, 1, 2].map(|j| dot(r[j], ray)));
@@ -268,7 +279,8 @@ fn perfect_masks_equal_ground_truth_and_degraded_ones_depart_from_it() {
         assert_eq!(listed.iter().map(|i| i["id"].as_u64().unwrap()).collect::<BTreeSet<_>>(), visible, "{stem}");
         assert!(listed.iter().all(|i| i["score"].as_f64() == Some(1.0)));
     }
-    let objects: serde_json::Value = serde_json::from_str(&fs::read_to_string(perfect.join("gt/objects.json")).unwrap()).unwrap();
+    let objects: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(perfect.join("gt/objects.json")).unwrap()).unwrap();
     assert_eq!(objects["mask_degradation"]["erode"], 0);
     assert!(objects["surfaces"].as_array().unwrap().iter().any(|s| s["shape"]["kind"] == "superquadric"));
 
@@ -285,7 +297,8 @@ fn perfect_masks_equal_ground_truth_and_degraded_ones_depart_from_it() {
         let visible: BTreeSet<u16> = gt.iter().copied().filter(|&g| g != 0).collect();
         let kept: BTreeSet<u16> = mask.iter().copied().filter(|&m| m != 0).collect();
         missed += visible.len() - kept.len();
-        let listed: BTreeSet<u16> = instances(&eroded, &stem).iter().map(|i| i["id"].as_u64().unwrap() as u16).collect();
+        let listed: BTreeSet<u16> =
+            instances(&eroded, &stem).iter().map(|i| i["id"].as_u64().unwrap() as u16).collect();
         assert_eq!(listed, kept, "{stem}: the json lists exactly the instances left in the image");
     }
     println!("erode 2, miss 0.3: {mask_px} of {gt_px} gt pixels kept, {missed} instance-frames missed");
@@ -305,10 +318,13 @@ fn perfect_masks_equal_ground_truth_and_degraded_ones_depart_from_it() {
             } else if m != 0 {
                 grown += 1;
                 let (u, v) = ((i % w) as i64, (i / w) as i64);
-                let near = (-2i64..=2).flat_map(|du| (-2i64..=2).map(move |dv| (du, dv))).filter(|(du, dv)| du.abs() + dv.abs() <= 2).any(|(du, dv)| {
-                    let (x, y) = (u + du, v + dv);
-                    (0..640).contains(&x) && (0..480).contains(&y) && gt[(y as usize) * w + x as usize] == m
-                });
+                let near = (-2i64..=2)
+                    .flat_map(|du| (-2i64..=2).map(move |dv| (du, dv)))
+                    .filter(|(du, dv)| du.abs() + dv.abs() <= 2)
+                    .any(|(du, dv)| {
+                        let (x, y) = (u + du, v + dv);
+                        (0..640).contains(&x) && (0..480).contains(&y) && gt[(y as usize) * w + x as usize] == m
+                    });
                 assert!(near, "{stem}: pixel {i} grew from nowhere");
             }
         }
@@ -346,7 +362,11 @@ fn same_seed_gives_identical_files_and_another_seed_other_depth() {
     scene.write_tum_degraded(&b, 3, 11, true, &d).unwrap();
     scene.write_tum_degraded(&c, 3, 12, true, &d).unwrap();
     let (fa, fb, fc) = (files(&a), files(&b), files(&c));
-    assert_eq!(fa.len(), 4 + 3 * 5 + 1, "rgb.txt, depth.txt, groundtruth.txt, camera.json, 3 frames × (rgb, depth, gt, mask png + json), objects.json");
+    assert_eq!(
+        fa.len(),
+        4 + 3 * 5 + 1,
+        "rgb.txt, depth.txt, groundtruth.txt, camera.json, 3 frames × (rgb, depth, gt, mask png + json), objects.json"
+    );
     assert_eq!(fa.keys().collect::<Vec<_>>(), fb.keys().collect::<Vec<_>>());
     for (name, bytes) in &fa {
         assert!(bytes == &fb[name], "{} differs between two runs with the same seed", name.display());
@@ -356,11 +376,37 @@ fn same_seed_gives_identical_files_and_another_seed_other_depth() {
     // And through the command, with the flags.
     let (x, y) = (tmp.path().join("x"), tmp.path().join("y"));
     for out in [&x, &y] {
-        let o = m2smap(&["synth", "--scene", "kitchen", "--frames", "2", "--seed", "5", "--mask-erode", "1", "--mask-miss", "0.5", "--mask-score-noise", "0.1", "--out", out.to_str().unwrap()]);
+        let o = m2smap(&[
+            "synth",
+            "--scene",
+            "kitchen",
+            "--frames",
+            "2",
+            "--seed",
+            "5",
+            "--mask-erode",
+            "1",
+            "--mask-miss",
+            "0.5",
+            "--mask-score-noise",
+            "0.1",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     assert_eq!(files(&x), files(&y));
-    let o = m2smap(&["synth", "--scene", "kitchen", "--frames", "1", "--mask-miss", "1.5", "--out", tmp.path().join("z").to_str().unwrap()]);
+    let o = m2smap(&[
+        "synth",
+        "--scene",
+        "kitchen",
+        "--frames",
+        "1",
+        "--mask-miss",
+        "1.5",
+        "--out",
+        tmp.path().join("z").to_str().unwrap(),
+    ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("miss") && !err.contains("panicked"), "{err}");
 }
@@ -410,7 +456,8 @@ fn inside(shape: &Shape, p: [f64; 3], margin: f64) -> bool {
         Shape::Sphere { centre, radius } => dot(sub(p, centre), sub(p, centre)).sqrt() < radius - margin,
         Shape::Superquadric { centre, scales, eps, yaw } => {
             let (c, s, d) = (f64::cos(yaw), f64::sin(yaw), sub(p, centre));
-            sq_inside_outside([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]], scales, eps) < 1.0 && shape.distance(p) > margin
+            sq_inside_outside([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]], scales, eps) < 1.0
+                && shape.distance(p) > margin
         }
     }
 }
@@ -422,7 +469,10 @@ fn bounds(shape: &Shape) -> Option<([f64; 3], [f64; 3])> {
         Shape::Plane { .. } => None,
         Shape::Box { centre, half, .. } => {
             let r = f64::hypot(half[0], half[1]);
-            Some(([centre[0] - r, centre[1] - r, centre[2] - half[2]], [centre[0] + r, centre[1] + r, centre[2] + half[2]]))
+            Some((
+                [centre[0] - r, centre[1] - r, centre[2] - half[2]],
+                [centre[0] + r, centre[1] + r, centre[2] + half[2]],
+            ))
         }
         Shape::Cylinder { centre, radius, half_height, .. } => around(centre, f64::hypot(radius, half_height)),
         Shape::Sphere { centre, radius } => around(centre, radius),
@@ -442,7 +492,8 @@ fn dining_table_is_one_masked_instance_and_no_solids_overlap() {
     let Shape::Box { centre, half, .. } = top.shape else { panic!("table top is a box") };
     assert!((centre[2] + half[2] - 0.74).abs() < 1e-9 && (half[2] - 0.02).abs() < 1e-9);
     // Every other object is its own instance: the box, the can, the two boxes of the stack and the floor crate.
-    let others: BTreeSet<u16> = scene.surfaces.iter().map(|s| s.instance).filter(|&i| i != 0 && i != table[0].instance).collect();
+    let others: BTreeSet<u16> =
+        scene.surfaces.iter().map(|s| s.instance).filter(|&i| i != 0 && i != table[0].instance).collect();
     assert_eq!(others.len(), 5);
 
     // No two solids share interior volume (touching is fine): a 2 mm grid over each pair's common bounds, each
@@ -459,7 +510,12 @@ fn dining_table_is_one_masked_instance_and_no_solids_overlap() {
             for i in 0..n[0] * n[1] * n[2] {
                 let (x, y, z) = (i % n[0], (i / n[0]) % n[1], i / (n[0] * n[1]));
                 let p = [lo[0] + 0.002 * x as f64, lo[1] + 0.002 * y as f64, lo[2] + 0.002 * z as f64];
-                assert!(!(inside(&sa.shape, p, 5e-4) && inside(&sb.shape, p, 5e-4)), "{} and {} overlap at {p:?}", sa.name, sb.name);
+                assert!(
+                    !(inside(&sa.shape, p, 5e-4) && inside(&sb.shape, p, 5e-4)),
+                    "{} and {} overlap at {p:?}",
+                    sa.name,
+                    sb.name
+                );
             }
         }
     }
@@ -473,7 +529,8 @@ fn dining_table_is_one_masked_instance_and_no_solids_overlap() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("dining");
     scene.write_tum(&out, 2, 1, false).unwrap();
-    let objects: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.join("gt/objects.json")).unwrap()).unwrap();
+    let objects: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(out.join("gt/objects.json")).unwrap()).unwrap();
     let listed = objects["surfaces"].as_array().unwrap();
     assert_eq!(objects["scene"], "dining");
     assert_eq!(listed.len(), scene.surfaces.len());
@@ -482,7 +539,8 @@ fn dining_table_is_one_masked_instance_and_no_solids_overlap() {
         assert_eq!(json["instance"].as_u64(), Some(s.instance as u64), "{}", s.name);
     }
     for stem in stems(&out) {
-        let tables: Vec<serde_json::Value> = instances(&out, &stem).into_iter().filter(|i| i["label"] == "dining table").collect();
+        let tables: Vec<serde_json::Value> =
+            instances(&out, &stem).into_iter().filter(|i| i["label"] == "dining table").collect();
         assert_eq!(tables.len(), 1, "{stem}: the table is one instance");
         assert_eq!(tables[0]["id"].as_u64(), Some(table[0].instance as u64));
     }

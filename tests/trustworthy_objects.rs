@@ -96,8 +96,11 @@ fn redkitchen_segmenter_objects_stay_on_what_was_seen() {
     let dir = tempfile::tempdir().unwrap();
     let s = run_ok(&data, dir.path(), &["--segmenter", "geometric", "--frames", "120"]);
     assert!(metric(&s, "g2r_rmse_m") <= 0.03, "G2R {}", s["g2r_rmse_m"]);
-    let frames: Vec<serde_json::Value> =
-        fs::read_to_string(dir.path().join("frames.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let frames: Vec<serde_json::Value> = fs::read_to_string(dir.path().join("frames.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     let worst = frames.iter().filter_map(|f| f["g2r_rmse_m"].as_f64()).fold(0.0, f64::max);
     assert!(worst <= 0.1, "a frame with G2R {worst}");
     assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.0, "superquadrics per frame {}", s["primitives"]["sq"]);

@@ -37,7 +37,9 @@ fn the_switches_of_each_variant() {
     }
     // `paper` and `pmsao` each differ from `full` in one thing.
     let (full, paper, pmsao) = (Variant::Full, Variant::Paper, Variant::Pmsao);
-    assert!(paper.semantic_fusion() && paper.superquadrics() && paper.aligns() && paper.planes() && !paper.extensions());
+    assert!(
+        paper.semantic_fusion() && paper.superquadrics() && paper.aligns() && paper.planes() && !paper.extensions()
+    );
     assert!(!pmsao.semantic_fusion() && pmsao.extensions() && pmsao.superquadrics() && pmsao.aligns());
     assert!(full.semantic_fusion() && full.extensions());
 }

@@ -12,9 +12,9 @@ use bytemuck::Zeroable;
 
 use crate::frame::Frame;
 use crate::gmm::{self, Gaussian};
-use crate::pool::Bounded;
 use crate::masks::{MaskPixels, MaskSet};
 use crate::params::Params;
+use crate::pool::Bounded;
 use crate::supervoxel::{self, Voxel};
 
 /// Largest number of instances per frame that annotation considers (the instance index is stored in 8 bits);
@@ -157,11 +157,7 @@ pub fn count_hits(
 }
 
 /// The best match among `candidates` given a hit counter: (instance index, inside count), maximising s_j · count.
-pub fn best_match(
-    masks: &MaskSet<'_>,
-    params: &Params,
-    mut inside: impl FnMut(usize) -> u32,
-) -> Option<(usize, u32)> {
+pub fn best_match(masks: &MaskSet<'_>, params: &Params, mut inside: impl FnMut(usize) -> u32) -> Option<(usize, u32)> {
     let mut best: Option<(f32, usize, u32)> = None;
     for k in 0..masks.instances.len().min(MAX_INSTANCES) {
         if !is_candidate(masks, k, params) {
@@ -181,7 +177,13 @@ pub fn best_match(
 
 /// Applies the acceptance rule to a unit of `support` points with `inside` of them in instance `k`; writes the
 /// semantic attributes (a, ℓ, s, ρ) through `set`, or clears them.
-pub fn accept(masks: &MaskSet<'_>, params: &Params, support: u32, best: Option<(usize, u32)>, g: &mut Gaussian) -> bool {
+pub fn accept(
+    masks: &MaskSet<'_>,
+    params: &Params,
+    support: u32,
+    best: Option<(usize, u32)>,
+    g: &mut Gaussian,
+) -> bool {
     g.instance = 0;
     g.class = 0;
     g.score = 0.0;

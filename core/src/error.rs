@@ -119,11 +119,9 @@ impl fmt::Display for FrameError {
 impl fmt::Display for MaskError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            MaskError::SizeMismatch { mask, frame } => write!(
-                f,
-                "mask is {}x{} pixels but the frame is {}x{}",
-                mask.0, mask.1, frame.0, frame.1
-            ),
+            MaskError::SizeMismatch { mask, frame } => {
+                write!(f, "mask is {}x{} pixels but the frame is {}x{}", mask.0, mask.1, frame.0, frame.1)
+            }
             MaskError::PixelLength { expected, found } => {
                 write!(f, "mask pixel buffer has {found} elements, expected {expected}")
             }

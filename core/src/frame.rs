@@ -58,8 +58,12 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// Whether the focal lengths are positive and every value is finite.
     pub fn is_valid(&self) -> bool {
-        self.fx.is_finite() && self.fy.is_finite() && self.fx > 0.0 && self.fy > 0.0
-            && self.cx.is_finite() && self.cy.is_finite()
+        self.fx.is_finite()
+            && self.fy.is_finite()
+            && self.fx > 0.0
+            && self.fy > 0.0
+            && self.cx.is_finite()
+            && self.cy.is_finite()
     }
 
     /// Back-projects pixel (u, v) at depth z (metres) into the camera frame, metres.

@@ -27,8 +27,8 @@
 use bytemuck::Zeroable;
 
 use crate::frame::Frame;
-use crate::masks::MaskSet;
 use crate::linalg::{self, Moments, Sym3, Vec3};
+use crate::masks::MaskSet;
 use crate::params::Params;
 use crate::pool::Bounded;
 use crate::supervoxel::{self, Supervoxel, Voxel, DROPPED};
@@ -91,11 +91,7 @@ impl Gaussian {
 
     /// Principal scales σk = √λk, metres.
     pub fn sigmas(&self) -> Vec3 {
-        [
-            libm::sqrtf(self.eigenvalues[0]),
-            libm::sqrtf(self.eigenvalues[1]),
-            libm::sqrtf(self.eigenvalues[2]),
-        ]
+        [libm::sqrtf(self.eigenvalues[0]), libm::sqrtf(self.eigenvalues[1]), libm::sqrtf(self.eigenvalues[2])]
     }
 }
 
@@ -139,7 +135,12 @@ pub struct GmmPools<'a, 'b> {
 }
 
 /// Refines every supervoxel into Gaussians and computes their exact point statistics.
-pub fn refine(pools: GmmPools<'_, '_>, frame: &Frame<'_>, voxel_masks: Option<&MaskSet<'_>>, params: &Params) -> GmmStats {
+pub fn refine(
+    pools: GmmPools<'_, '_>,
+    frame: &Frame<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
+    params: &Params,
+) -> GmmStats {
     let GmmPools { voxels, slots, order, supervoxels, stack, gaussians } = pools;
     let mut stats = GmmStats::default();
     gaussians.clear();
@@ -302,14 +303,18 @@ fn process(
         let mean = m.mean();
         let along = |axis: Vec3, s: f32| {
             let offset = linalg::scale(axis, s);
-            [Feature { p: linalg::add(mean, offset), n: mean_normal }, Feature { p: linalg::sub(mean, offset), n: mean_normal }]
+            [
+                Feature { p: linalg::add(mean, offset), n: mean_normal },
+                Feature { p: linalg::sub(mean, offset), n: mean_normal },
+            ]
         };
         let candidates = [
             bent.then(|| normal_seeds(range, voxels, mean_normal, r)),
             Some(along(eig.vectors[0], sigma[0])),
             (sigma[2] > max_thickness).then(|| along(eig.vectors[2], sigma[2])),
         ];
-        let split = candidates.into_iter().flatten().find_map(|seeds| two_means_partition(range, voxels, seeds, params));
+        let split =
+            candidates.into_iter().flatten().find_map(|seeds| two_means_partition(range, voxels, seeds, params));
         if let Some(mid) = split {
             let mid = task.start + mid as u16;
             let right = SplitTask { start: mid, end: task.end, depth: task.depth + 1, supervoxel: task.supervoxel };
@@ -442,4 +447,3 @@ fn two_means_partition(range: &mut [u16], voxels: &[Voxel], seeds: [Feature; 2],
     let ok = first_points >= params.gmm_min_points && second_points >= params.gmm_min_points;
     ok.then_some(lo).filter(|&m| m > 0 && m < range.len())
 }
-

@@ -41,9 +41,9 @@
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
+pub mod annotate;
 pub mod error;
 pub mod fastmath;
-pub mod annotate;
 pub mod frame;
 pub mod fuse;
 pub mod gmm;

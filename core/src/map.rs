@@ -178,11 +178,8 @@ impl MapSq {
         let count = |len: f32| (libm::ceilf(2.0 * len / spacing) as usize).clamp(1, 64);
         // (face axis w, in-face axes u, v) with their half-lengths; `place` puts (w, u, v) back in x, y, z order.
         type Place = fn(f32, f32, f32) -> Vec3;
-        let faces: [(f32, f32, f32, Place); 3] = [
-            (a0, a1, a2, |w, u, v| [w, u, v]),
-            (a1, a2, a0, |w, u, v| [v, w, u]),
-            (a2, a0, a1, |w, u, v| [u, v, w]),
-        ];
+        let faces: [(f32, f32, f32, Place); 3] =
+            [(a0, a1, a2, |w, u, v| [w, u, v]), (a1, a2, a0, |w, u, v| [v, w, u]), (a2, a0, a1, |w, u, v| [u, v, w])];
         for (aw, au, av, place) in faces {
             let (nu, nv) = (count(au), count(av));
             for side in [-1.0f32, 1.0] {

@@ -2,27 +2,27 @@
 
 use crate::annotate::{self, MaskHit};
 use crate::error::FrameError;
+use crate::error::ParamError;
+use crate::frame::Frame;
 use crate::fuse;
+use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
 use crate::gmm::{ROLE_OBJECT, ROLE_PLANE, ROLE_RESIDUAL};
 use crate::linalg::{self, Moments, Vec3};
 use crate::map::{CellBits, MapGmm, MapPlane, MapSq, Primitive};
-use crate::plane::PLANE_GRID;
-use crate::wire::{self, WireError};
-use crate::objects::{self, Object, SQ_ACCEPTED, SQ_NONE, SQ_REJECTED};
-use crate::superquadric::{self, Superquadric};
-use crate::track::{self, Track, Tracker};
-use crate::plane::{self, Plane};
-use crate::error::ParamError;
-use crate::frame::Frame;
-use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
 use crate::masks::{Instance, MaskSet};
-use crate::segment;
-use crate::snapshot;
+use crate::objects::{self, Object, SQ_ACCEPTED, SQ_NONE, SQ_REJECTED};
 use crate::params::Params;
+use crate::plane::PLANE_GRID;
+use crate::plane::{self, Plane};
 use crate::points::Point;
 use crate::pool::{Bounded, PoolId, PoolUsage};
 use crate::profile::Profile;
+use crate::segment;
+use crate::snapshot;
+use crate::superquadric::{self, Superquadric};
 use crate::supervoxel::{self, SeedCell, Supervoxel, SupervoxelPools, Voxel};
+use crate::track::{self, Track, Tracker};
+use crate::wire::{self, WireError};
 
 /// Most objects whose fit points are gathered in one pass over the frame.
 const MAX_OBJECTS_PER_PASS: usize = 64;
@@ -245,7 +245,10 @@ impl<'s> Mapper<'s> {
     ) -> Result<(FrameReport, usize), FrameError> {
         let checked = self.check(frame, None)?;
         if ids.len() != frame.pixels() {
-            return Err(FrameError::Masks(crate::error::MaskError::PixelLength { expected: frame.pixels(), found: ids.len() }));
+            return Err(FrameError::Masks(crate::error::MaskError::PixelLength {
+                expected: frame.pixels(),
+                found: ids.len(),
+            }));
         }
         self.stage_voxels(&checked);
         self.stage_supervoxels();
@@ -281,16 +284,14 @@ impl<'s> Mapper<'s> {
         self.report = FrameReport { frame: self.frames + 1, ..FrameReport::default() };
         self.slotted = checked.masks.is_some() && self.params.mask_consistent();
         let voxel_masks = self.voxel_masks(checked);
-        let stats = supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
+        let stats =
+            supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
         supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.params.voxel_resolution);
         self.report.points = stats.points;
         self.report.dropped_points += stats.dropped_points;
         self.report.voxels = self.voxels.len() as u32;
-        self.report.pools[1] = PoolUsage {
-            peak: self.voxels.len(),
-            capacity: self.slots.len(),
-            overflow_events: stats.slot_overflows,
-        };
+        self.report.pools[1] =
+            PoolUsage { peak: self.voxels.len(), capacity: self.slots.len(), overflow_events: stats.slot_overflows };
     }
 
     /// Stage 2: supervoxels (second step of [`Mapper::process`]).
@@ -370,12 +371,18 @@ impl<'s> Mapper<'s> {
             }
         }
         if self.params.variant.semantic_fusion() {
-            self.report.annotated = annotate::annotate(&masks, self.gaussians.as_mut_slice(), self.mask_hits, &self.params);
+            self.report.annotated =
+                annotate::annotate(&masks, self.gaussians.as_mut_slice(), self.mask_hits, &self.params);
         }
     }
 
     /// Fills the mask-hit table for the current Gaussians.
-    fn count_mask_hits(&mut self, frame: &Frame<'_>, masks: &MaskSet<'_>, voxel_masks: Option<&MaskSet<'_>>) -> annotate::AnnotateStats {
+    fn count_mask_hits(
+        &mut self,
+        frame: &Frame<'_>,
+        masks: &MaskSet<'_>,
+        voxel_masks: Option<&MaskSet<'_>>,
+    ) -> annotate::AnnotateStats {
         annotate::count_hits(
             frame,
             masks,
@@ -470,7 +477,13 @@ impl<'s> Mapper<'s> {
             &params,
         );
         let by_cluster = params.variant.geometric_objects();
-        objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects, |g| if by_cluster { g.cluster } else { g.instance });
+        objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects, |g| {
+            if by_cluster {
+                g.cluster
+            } else {
+                g.instance
+            }
+        });
         let count = |role| self.gaussians.as_slice().iter().filter(|g| g.role == role).count() as u32;
         self.report.plane_gaussians = count(ROLE_PLANE);
         self.report.object_gaussians = count(ROLE_OBJECT);
@@ -508,7 +521,8 @@ impl<'s> Mapper<'s> {
                 if g.role != ROLE_OBJECT || k < first || k >= last || !eligible(k) {
                     return;
                 }
-                let (Some(o), Some(c), Some(t)) = (objects.get(k), seen.get_mut(k - first), taken.get_mut(k - first)) else {
+                let (Some(o), Some(c), Some(t)) = (objects.get(k), seen.get_mut(k - first), taken.get_mut(k - first))
+                else {
                     return;
                 };
                 // Evenly spaced over the object's points in pixel order: exactly min(samples, N) of them.
@@ -524,7 +538,14 @@ impl<'s> Mapper<'s> {
             };
             // The point pass only samples for eligible objects: skipped when there are none.
             if (first..last).any(eligible) {
-                supervoxel::for_each_voxel_point(&checked.frame, &params, voxel_masks.as_ref(), self.voxels.as_slice(), self.slots, sample);
+                supervoxel::for_each_voxel_point(
+                    &checked.frame,
+                    &params,
+                    voxel_masks.as_ref(),
+                    self.voxels.as_slice(),
+                    self.slots,
+                    sample,
+                );
             }
             for k in first..last {
                 let n = taken.get(k - first).copied().unwrap_or(0);
@@ -555,7 +576,11 @@ impl<'s> Mapper<'s> {
             let points = self.sq_points.get(offset..offset + n).unwrap_or(&[]);
             let pose = checked.frame.pose;
             let to_track = |q: &Superquadric| match pose {
-                Some(p) => Superquadric { centre: p.to_world(q.centre), rotation: linalg::mat_mul(&p.rotation, &q.rotation), ..*q },
+                Some(p) => Superquadric {
+                    centre: p.to_world(q.centre),
+                    rotation: linalg::mat_mul(&p.rotation, &q.rotation),
+                    ..*q
+                },
                 None => *q,
             };
             let to_camera = |q: &Superquadric| match pose {
@@ -573,20 +598,27 @@ impl<'s> Mapper<'s> {
             let patches = self.patches.get(..self.patches_len).unwrap_or(&[]);
             // Objects by geometry (MMQ) are fused clusters themselves: a patch may be the object's own face.
             let patches = if params.variant.geometric_objects() { &[] } else { patches };
-            let n_supports = support_planes(self.planes.as_slice(), patches, object.instance, points, params.g_p, &mut supports);
+            let n_supports =
+                support_planes(self.planes.as_slice(), patches, object.instance, points, params.g_p, &mut supports);
             let mut probes = [[0.0f32; 3]; superquadric::MAX_PROBES + FOREIGN_PROBES + OBSTACLE_PROBES];
             let (z_near, z_far) = points.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2])));
             let z_far = z_far + 0.5 * (z_far - z_near).max(0.0);
-            let n_probes = superquadric::free_space_probes(&checked.frame, object.pixel_bbox, z_near, z_far, &params, &mut probes);
+            let n_probes =
+                superquadric::free_space_probes(&checked.frame, object.pixel_bbox, z_near, z_far, &params, &mut probes);
             // Other objects near this one (convex objects do not interpenetrate): what was seen of them, and
             // their tracked shapes.
-            let reach = (linalg::sub(object.bbox_min, [FOREIGN_REACH; 3]), linalg::add(object.bbox_max, [FOREIGN_REACH; 3]));
+            let reach =
+                (linalg::sub(object.bbox_min, [FOREIGN_REACH; 3]), linalg::add(object.bbox_max, [FOREIGN_REACH; 3]));
             let rest = probes.get_mut(n_probes..).unwrap_or(&mut []);
             let n_probes = n_probes + neighbour_gaussian_probes(self.gaussians.as_slice(), k, reach, rest);
             let own = self.tracker.nearest(track_centre, object.class, &params);
-            let others = self.tracker.tracks.as_slice().iter().enumerate().filter(|&(i, t)| {
-                Some(i) != own && t.last_frame.saturating_add(1) >= self.tracker.frame
-            });
+            let others = self
+                .tracker
+                .tracks
+                .as_slice()
+                .iter()
+                .enumerate()
+                .filter(|&(i, t)| Some(i) != own && t.last_frame.saturating_add(1) >= self.tracker.frame);
             let mut n_probes = n_probes;
             for (_, t) in others {
                 let rest = probes.get_mut(n_probes..).unwrap_or(&mut []);
@@ -608,7 +640,8 @@ impl<'s> Mapper<'s> {
             // every `REFUSAL_RETRY_FRAMES`-th frame (see `track::Refusal`): it keeps its Gaussians meanwhile.
             let untracked = own.is_none();
             skipped = warm.is_none() && untracked && self.tracker.skips_search(track_centre, object.class, &params);
-            let fit = if skipped { None } else { warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params)) };
+            let fit =
+                if skipped { None } else { warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params)) };
             if untracked && !skipped {
                 if fit.is_some_and(|f| f.accepted) {
                     self.tracker.forget_refusal(track_centre, object.class, &params);
@@ -620,11 +653,16 @@ impl<'s> Mapper<'s> {
                 error = fit.error;
                 if fit.accepted {
                     state = SQ_ACCEPTED;
-                    let updated = self.tracker.update(&to_track(&fit.sq), object.class, &params, params.variant.aligns());
+                    let updated =
+                        self.tracker.update(&to_track(&fit.sq), object.class, &params, params.variant.aligns());
                     // The map shows the smoothed state when this frame's points and evidence allow it, else
                     // this frame's fit: a track's history never puts a shape where the camera now sees nothing.
                     let smoothed = to_camera(&updated.sq);
-                    sq = if superquadric::is_consistent(&smoothed, points, &evidence, &params) { smoothed } else { fit.sq };
+                    sq = if superquadric::is_consistent(&smoothed, points, &evidence, &params) {
+                        smoothed
+                    } else {
+                        fit.sq
+                    };
                     self.report.max_track_step_m = self.report.max_track_step_m.max(updated.step_m);
                     track = updated.index.and_then(|i| self.tracker.tracks.get(i)).map_or(0, |t| t.id);
                     if updated.new {
@@ -753,7 +791,13 @@ impl<'s> Mapper<'s> {
                 colour: p.colour,
                 cluster: p.cluster,
                 g_p: self.params.g_p,
-                cells: CellBits { a0: -half, b0: -half, width: PLANE_GRID as u16, height: PLANE_GRID as u16, bits: &p.cells },
+                cells: CellBits {
+                    a0: -half,
+                    b0: -half,
+                    width: PLANE_GRID as u16,
+                    height: PLANE_GRID as u16,
+                    bits: &p.cells,
+                },
             }));
         }
         for o in self.objects.as_slice().iter().filter(|o| o.sq_state == SQ_ACCEPTED) {
@@ -852,9 +896,14 @@ impl<'s> Mapper<'s> {
     /// Calls `f(point, voxel)` for every sampled point of `checked` with the voxel it fell into (labels tell
     /// its supervoxel and Gaussian). `checked` must be the frame last processed for the labels to mean anything.
     pub fn for_each_labelled_point(&self, checked: &CheckedFrame<'_>, mut f: impl FnMut(&Point, Option<&Voxel>)) {
-        supervoxel::for_each_voxel_point(&checked.frame, &self.params, self.voxel_masks(checked).as_ref(), self.voxels.as_slice(), self.slots, |p, v| {
-            f(p, v.map(|(_, v)| v))
-        });
+        supervoxel::for_each_voxel_point(
+            &checked.frame,
+            &self.params,
+            self.voxel_masks(checked).as_ref(),
+            self.voxels.as_slice(),
+            self.slots,
+            |p, v| f(p, v.map(|(_, v)| v)),
+        );
     }
 }
 
@@ -864,7 +913,14 @@ impl<'s> Mapper<'s> {
 /// lie on one side of it (no more than 2 cm behind) and the foot of the points' mean lies within its extent: a
 /// bounded plane's occupied-cell box grown by two cells (`g_p` metres each), a patch's 2σ box grown by 5 cm.
 /// Convex objects do not interpenetrate, so a face seen of one object bounds its neighbours.
-fn support_planes(planes: &[Plane], patches: &[plane::FlatPatch], instance: u16, points: &[Vec3], g_p: f32, out: &mut [superquadric::HalfSpace]) -> usize {
+fn support_planes(
+    planes: &[Plane],
+    patches: &[plane::FlatPatch],
+    instance: u16,
+    points: &[Vec3],
+    g_p: f32,
+    out: &mut [superquadric::HalfSpace],
+) -> usize {
     if points.is_empty() {
         return 0;
     }
@@ -917,7 +973,9 @@ fn neighbour_gaussian_probes(gaussians: &[Gaussian], k: usize, reach: (Vec3, Vec
     let (lo, hi) = reach;
     let mut slots = out.iter_mut();
     let mut n = 0;
-    for g in gaussians.iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize != k && within_box(g.mean, lo, hi, 0.0)) {
+    for g in
+        gaussians.iter().filter(|g| g.role == ROLE_OBJECT && g.owner as usize != k && within_box(g.mean, lo, hi, 0.0))
+    {
         let ([a0, a1, _], [s0, s1, _]) = (g.axes, g.sigmas());
         let ends = [
             g.mean,

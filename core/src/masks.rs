@@ -118,7 +118,8 @@ impl<'a> MaskSet<'a> {
                 _ => 0,
             },
             MaskPixels::BitPlanes(_) => slot_of(
-                (0..self.instances.len()).find(|&k| self.instances.get(k).is_some_and(usable) && self.contains(k, u, v)),
+                (0..self.instances.len())
+                    .find(|&k| self.instances.get(k).is_some_and(usable) && self.contains(k, u, v)),
             ),
         }
     }

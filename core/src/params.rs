@@ -5,8 +5,7 @@
 use crate::error::ParamError;
 
 /// Which method the mapper runs (docs/variants.md): one switch each, same code path.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[derive(serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Variant {
     /// M2-SMap with m2smap's extensions (mask slots in the voxels, the mask cut, held-back uncertain fragments,
@@ -102,8 +101,7 @@ pub const DEPTH_TOLERANCE_MIN_M: f32 = 0.02;
 pub const DEPTH_TOLERANCE_SIGMAS: f32 = 3.0;
 
 /// The mapping parameters Θ. `Params::default()` is the paper's setting.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[derive(serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Params {
     /// Method variant (docs/variants.md).
@@ -392,7 +390,10 @@ impl Params {
         check(self.sq_scale_prior.is_finite() && self.sq_scale_prior >= 0.0, "sq_scale_prior")?;
         check(pos(self.sq_max_rms), "sq_max_rms")?;
         let (eps_lo, eps_hi) = crate::superquadric::EPS_RANGE;
-        check(self.sq_eps_max.is_finite() && self.sq_eps_max >= 1.0 && self.sq_eps_max <= eps_hi && eps_lo < 1.0, "sq_eps_max")?;
+        check(
+            self.sq_eps_max.is_finite() && self.sq_eps_max >= 1.0 && self.sq_eps_max <= eps_hi && eps_lo < 1.0,
+            "sq_eps_max",
+        )?;
         check(pos(self.d_max), "d_max")?;
         check(unit(self.alpha_c), "alpha_c")?;
         check(unit(self.alpha_r), "alpha_r")?;

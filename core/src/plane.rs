@@ -11,9 +11,9 @@
 use bytemuck::Zeroable;
 
 use crate::frame::Frame;
-use crate::masks::MaskSet;
 use crate::gmm::{Gaussian, ROLE_PLANE};
 use crate::linalg::{self, Eigen3, Vec3};
+use crate::masks::MaskSet;
 use crate::params::Params;
 use crate::supervoxel::{self, Voxel};
 
@@ -175,11 +175,7 @@ impl Plane {
                 }
             }
         }
-        lo.0 != usize::MAX
-            && a + reach >= lo.0
-            && a <= hi.0 + reach
-            && b + reach >= lo.1
-            && b <= hi.1 + reach
+        lo.0 != usize::MAX && a + reach >= lo.0 && a <= hi.0 + reach && b + reach >= lo.1 && b <= hi.1 + reach
     }
 
     fn occupy(&mut self, a: usize, b: usize) {

@@ -8,13 +8,13 @@ use bytemuck::Zeroable;
 
 use crate::annotate::MaskHit;
 use crate::gmm::{Gaussian, SplitTask};
-use crate::objects::Object;
 use crate::linalg::Vec3;
-use crate::plane::Plane;
-use crate::track::Track;
 use crate::mapper::Mapper;
+use crate::objects::Object;
+use crate::plane::Plane;
 use crate::pool::PoolId;
 use crate::supervoxel::{SeedCell, Supervoxel, Voxel};
+use crate::track::Track;
 
 /// Depth of the split work stack. The stack never holds more than `gmm_max_depth + 1 ≤ 31` ranges.
 pub const SPLIT_STACK: usize = 64;

@@ -133,7 +133,8 @@ pub fn segment(
         }
         let (u, v) = ((i % w) as u16, (i / w) as u16);
         let p = frame.intrinsics.unproject(u as f32, v as f32, frame.metres(raw));
-        let Some(g) = supervoxel::voxel_at(voxels, slots, p, r, 0).and_then(|(_, vx)| gaussians.get(vx.gaussian as usize))
+        let Some(g) =
+            supervoxel::voxel_at(voxels, slots, p, r, 0).and_then(|(_, vx)| gaussians.get(vx.gaussian as usize))
         else {
             continue;
         };

@@ -76,7 +76,8 @@ pub fn write(buf: &mut [u8], state: &State, tracks: &[Track], refusals: &[Refusa
         tracker_frame: state.tracker_frame,
         next_track_id: state.next_track_id,
         tracks: u16::try_from(tracks.len()).map_err(|_| WireError::TooManyPrimitives)?,
-        refusals: u16::try_from(refusals.iter().filter(|r| r.count > 0).count()).map_err(|_| WireError::TooManyPrimitives)?,
+        refusals: u16::try_from(refusals.iter().filter(|r| r.count > 0).count())
+            .map_err(|_| WireError::TooManyPrimitives)?,
     };
     let mut used = postcard::to_slice(&head, buf).map_err(map_err)?.len();
     for t in tracks {
@@ -107,7 +108,12 @@ pub fn write(buf: &mut [u8], state: &State, tracks: &[Track], refusals: &[Refusa
 /// Validates a snapshot completely and only then calls `track` for each saved track and `refusal` for each
 /// saved refusal (in order); returns the state. `max_tracks` is the caller's track capacity: a snapshot with
 /// more tracks (or more than [`MAX_REFUSALS`] refusals) is refused.
-pub fn read(bytes: &[u8], max_tracks: usize, mut track: impl FnMut(Track), mut refusal: impl FnMut(Refusal)) -> Result<State, WireError> {
+pub fn read(
+    bytes: &[u8],
+    max_tracks: usize,
+    mut track: impl FnMut(Track),
+    mut refusal: impl FnMut(Refusal),
+) -> Result<State, WireError> {
     let body = checked_body(bytes)?;
     let parse = |f: &mut dyn FnMut(Track), g: &mut dyn FnMut(Refusal)| -> Result<State, WireError> {
         let (head, mut rest): (Head, _) = postcard::take_from_bytes(body).map_err(map_err)?;
@@ -130,7 +136,14 @@ pub fn read(bytes: &[u8], max_tracks: usize, mut track: impl FnMut(Track), mut r
             if !sq.is_within_bounds() || !s.last_jump_deg.is_finite() {
                 return Err(WireError::BadValue("track"));
             }
-            f(Track { sq, id: s.id, class: s.class, last_frame: s.last_frame, updates: s.updates, last_jump_deg: s.last_jump_deg });
+            f(Track {
+                sq,
+                id: s.id,
+                class: s.class,
+                last_frame: s.last_frame,
+                updates: s.updates,
+                last_jump_deg: s.last_jump_deg,
+            });
         }
         for _ in 0..head.refusals {
             let (r, more): (SavedRefusal, _) = postcard::take_from_bytes(rest).map_err(map_err)?;

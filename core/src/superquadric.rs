@@ -133,10 +133,14 @@ impl Superquadric {
         if points.is_empty() {
             return f32::INFINITY;
         }
-        points.iter().map(|&p| {
-            let r = self.residual(p);
-            r * r
-        }).sum::<f32>() / points.len() as f32
+        points
+            .iter()
+            .map(|&p| {
+                let r = self.residual(p);
+                r * r
+            })
+            .sum::<f32>()
+            / points.len() as f32
     }
 
     /// Signed distance of a camera-frame point from the surface to first order, metres: (G − 1)/‖∇G‖ with
@@ -369,7 +373,14 @@ pub struct Evidence<'a> {
 /// object's depth range `[z_near, z_far]` (metres), every point in front of the nearest valid depth within 2 px
 /// of its pixel by more than max(2 cm, 3σ(z)). A ray whose window has no valid depth is unknown and gives none.
 /// Returns the number written to `out`.
-pub fn free_space_probes(frame: &Frame<'_>, pixel_box: [u16; 4], z_near: f32, z_far: f32, params: &Params, out: &mut [Vec3]) -> usize {
+pub fn free_space_probes(
+    frame: &Frame<'_>,
+    pixel_box: [u16; 4],
+    z_near: f32,
+    z_far: f32,
+    params: &Params,
+    out: &mut [Vec3],
+) -> usize {
     let (w, h) = (frame.width as i32, frame.height as i32);
     let [u0, v0, u1, v1] = pixel_box.map(|x| x as i32);
     let (gu, gv) = ((u1 - u0) / 4 + 3, (v1 - v0) / 4 + 3);
@@ -589,14 +600,26 @@ fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
     let n = prob.points.len() as f32;
     let excess = extent_excess(sq, prob.extent_points, prob.lateral, |_| EXTENT_MARGIN).metres;
     let extent = EXTENT_WEIGHT * n * excess.iter().map(|e| e * e).sum::<f32>();
-    let support: f32 = prob.evidence.supports.iter().map(|h| {
-        let e = (sq.lowest_along(h.normal) - h.offset - SUPPORT_CLEARANCE).min(0.0);
-        SUPPORT_WEIGHT * n * e * e
-    }).sum();
-    let free: f32 = prob.evidence.free.iter().chain(prob.extra).filter_map(|&p| probe_distance(sq, p, prob.radial)).map(|(_, _, d)| {
-        let e = d.min(0.0);
-        FREE_WEIGHT * e * e
-    }).sum();
+    let support: f32 = prob
+        .evidence
+        .supports
+        .iter()
+        .map(|h| {
+            let e = (sq.lowest_along(h.normal) - h.offset - SUPPORT_CLEARANCE).min(0.0);
+            SUPPORT_WEIGHT * n * e * e
+        })
+        .sum();
+    let free: f32 = prob
+        .evidence
+        .free
+        .iter()
+        .chain(prob.extra)
+        .filter_map(|&p| probe_distance(sq, p, prob.radial))
+        .map(|(_, _, d)| {
+            let e = d.min(0.0);
+            FREE_WEIGHT * e * e
+        })
+        .sum();
     prob.prior * linalg::dot(sq.scales, sq.scales) + extent + support + free
 }
 
@@ -608,15 +631,19 @@ fn cost(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
 /// [`cost`], keeping each point's [`Powers`] in `kept` (as many as it holds).
 fn cost_keeping(sq: &Superquadric, prob: &Problem<'_>, kept: &mut [Powers]) -> f32 {
     let mut kept = kept.iter_mut();
-    let data: f32 = prob.points.iter().map(|&p| {
-        let l = sq.local(p);
-        let pw = sq.powers(l);
-        if let Some(k) = kept.next() {
-            *k = pw;
-        }
-        let d = if prob.radial { Superquadric::radial_distance(l, &pw) } else { sq.distance_from(l, &pw).0 };
-        d * d
-    }).sum();
+    let data: f32 = prob
+        .points
+        .iter()
+        .map(|&p| {
+            let l = sq.local(p);
+            let pw = sq.powers(l);
+            if let Some(k) = kept.next() {
+                *k = pw;
+            }
+            let d = if prob.radial { Superquadric::radial_distance(l, &pw) } else { sq.distance_from(l, &pw).0 };
+            d * d
+        })
+        .sum();
     let c = data + penalties(sq, prob);
     if c.is_finite() {
         c
@@ -671,7 +698,13 @@ fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2], deepen: bool) 
     // and move the centre away from the camera by the difference.
     let view = linalg::normalize_or(mean, [0.0, 0.0, 1.0]);
     let along = |k: usize| libm::fabsf(linalg::dot(linalg::column(r0, k), view));
-    let k = if along(0) >= along(1) && along(0) >= along(2) { 0 } else if along(1) >= along(2) { 1 } else { 2 };
+    let k = if along(0) >= along(1) && along(0) >= along(2) {
+        0
+    } else if along(1) >= along(2) {
+        1
+    } else {
+        2
+    };
     let others = (theta[0] + theta[1] + theta[2] - theta.get(k).copied().unwrap_or(0.0)) * 0.5;
     if let (Some(a), Some(c)) = (theta.get_mut(k), centre_local.get_mut(k)) {
         if deepen && others > *a {
@@ -1005,14 +1038,18 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     if points.len() < SQ_PARAMS {
         return None;
     }
-    let prob = Problem { points, extent_points: points, evidence: *evidence, lateral: lateral_half_extent(points), prior: params.sq_scale_prior, radial: false, extra: &[] };
+    let prob = Problem {
+        points,
+        extent_points: points,
+        evidence: *evidence,
+        lateral: lateral_half_extent(points),
+        prior: params.sq_scale_prior,
+        radial: false,
+        extra: &[],
+    };
     let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
     let (e0, e1, e2) = (linalg::column(pca, 0), linalg::column(pca, 1), linalg::column(pca, 2));
-    let frames = [
-        linalg::from_columns(e0, e1, e2),
-        linalg::from_columns(e1, e2, e0),
-        linalg::from_columns(e2, e0, e1),
-    ];
+    let frames = [linalg::from_columns(e0, e1, e2), linalg::from_columns(e1, e2, e0), linalg::from_columns(e2, e0, e1)];
     // Successive halving over the 18 guesses (3 frames × 3 ε × plain/deepened): every guess gets
     // `FIRST_SCREEN_ITERS` LM iterations, the best `SECOND_SCREEN_RUNS` `SCREEN_ITERS`, then the best
     // `FINISHED_CANDIDATES` are finished on all points.
@@ -1082,7 +1119,15 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
     if points.len() < SQ_PARAMS {
         return None;
     }
-    let prob = Problem { points, extent_points: points, evidence: *evidence, lateral: lateral_half_extent(points), prior: params.sq_scale_prior, radial: false, extra: &[] };
+    let prob = Problem {
+        points,
+        extent_points: points,
+        evidence: *evidence,
+        lateral: lateral_half_extent(points),
+        prior: params.sq_scale_prior,
+        radial: false,
+        extra: &[],
+    };
     let mut theta = [0.0; SQ_PARAMS];
     theta[..3].copy_from_slice(&start.scales);
     theta[3..5].copy_from_slice(if params.variant.ellipsoids_only() { &ELLIPSOID_EPS } else { &start.eps });
@@ -1229,7 +1274,10 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
 /// Whether `sq` stays within the extent of its support `points` (camera frame): the LM's extent constraint
 /// (see the module docs, with the hidden-depth prior) with a looser margin of 3 cm + 15 % of the half-axis.
 pub fn stays_within_support(sq: &Superquadric, points: &[Vec3]) -> bool {
-    extent_excess(sq, points, lateral_half_extent(points), |a| SUPPORT_MARGIN + 0.15 * a).metres.iter().all(|&e| e <= 0.0)
+    extent_excess(sq, points, lateral_half_extent(points), |a| SUPPORT_MARGIN + 0.15 * a)
+        .metres
+        .iter()
+        .all(|&e| e <= 0.0)
 }
 
 /// Whether `sq` respects the `evidence` (and the `extra` probes of its fit): no support plane undercut by more
@@ -1346,11 +1394,8 @@ mod gradient_tests {
     /// The analytic ∂G/∂(a, ε) agrees with central differences of G at points inside, on and outside shapes.
     #[test]
     fn shape_gradient_matches_finite_differences() {
-        let shapes = [
-            ([0.2f32, 0.1, 0.3], [0.3f32, 0.3]),
-            ([0.15, 0.25, 0.1], [1.0, 1.0]),
-            ([0.3, 0.2, 0.12], [0.6, 1.4]),
-        ];
+        let shapes =
+            [([0.2f32, 0.1, 0.3], [0.3f32, 0.3]), ([0.15, 0.25, 0.1], [1.0, 1.0]), ([0.3, 0.2, 0.12], [0.6, 1.4])];
         let points = [[0.1f32, 0.05, 0.2], [0.3, -0.1, 0.05], [-0.05, 0.2, -0.25], [0.12, 0.04, -0.02]];
         for (scales, eps) in shapes {
             let sq = Superquadric { scales, eps, centre: [0.0; 3], rotation: linalg::IDENTITY };
@@ -1369,7 +1414,10 @@ mod gradient_tests {
                     };
                     let numeric = (at(h) - at(-h)) / (2.0 * h as f64);
                     let err = (derivative as f64 - numeric).abs();
-                    assert!(err <= 2e-2 * numeric.abs().max(0.05), "{scales:?} {eps:?} at {l:?}, param {j}: analytic {derivative} numeric {numeric}");
+                    assert!(
+                        err <= 2e-2 * numeric.abs().max(0.05),
+                        "{scales:?} {eps:?} at {l:?}, param {j}: analytic {derivative} numeric {numeric}"
+                    );
                 }
             }
         }
@@ -1379,16 +1427,23 @@ mod gradient_tests {
     /// the best comes within 2 mm, for box-like, round and diamond cross-sections in any orientation.
     #[test]
     fn support_function_is_the_largest_projection() {
-        let shapes = [([0.2f32, 0.1, 0.3], [0.2f32, 0.2]), ([0.15, 0.25, 0.1], [1.0, 1.0]), ([0.3, 0.2, 0.12], [0.6, 1.8])];
+        let shapes =
+            [([0.2f32, 0.1, 0.3], [0.2f32, 0.2]), ([0.15, 0.25, 0.1], [1.0, 1.0]), ([0.3, 0.2, 0.12], [0.6, 1.8])];
         let dirs = [[0.0f32, 0.0, -1.0], [0.6, 0.0, 0.8], [0.48, -0.6, 0.64], [-0.36, 0.48, -0.8]];
         for (scales, eps) in shapes {
-            let sq = Superquadric { scales, eps, centre: [0.1, -0.2, 1.5], rotation: linalg::rotation_from_vector([0.3, -0.5, 0.2]) };
+            let sq = Superquadric {
+                scales,
+                eps,
+                centre: [0.1, -0.2, 1.5],
+                rotation: linalg::rotation_from_vector([0.3, -0.5, 0.2]),
+            };
             for dir in dirs {
                 let h = sq.support(dir);
                 let mut best = f32::MIN;
                 for i in 0..=200 {
                     for j in 0..400 {
-                        let (t, p) = (core::f32::consts::PI * i as f32 / 200.0, core::f32::consts::TAU * j as f32 / 400.0);
+                        let (t, p) =
+                            (core::f32::consts::PI * i as f32 / 200.0, core::f32::consts::TAU * j as f32 / 400.0);
                         let d = [libm::sinf(t) * libm::cosf(p), libm::sinf(t) * libm::sinf(p), libm::cosf(t)];
                         let l = linalg::scale(d, libm::powf(sq.implicit(d), -0.5 * eps[0]));
                         let x = linalg::add(sq.centre, linalg::mat_vec(&sq.rotation, l));

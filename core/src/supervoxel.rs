@@ -21,8 +21,8 @@ use bytemuck::Zeroable;
 
 use crate::frame::Frame;
 use crate::linalg::{self, Moments, Vec3};
-use crate::params::{Params, VOXEL_GRID_HALF_EXTENT};
 use crate::masks::{MaskSet, SlotCache};
+use crate::params::{Params, VOXEL_GRID_HALF_EXTENT};
 use crate::points;
 use crate::pool::{self, Bounded, Probe};
 use crate::union_find;
@@ -238,7 +238,13 @@ pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl
 /// The index and record of the voxel of mask slot `slot` that a camera-frame point (metres) falls into, if
 /// that voxel is occupied.
 #[inline]
-pub fn voxel_at<'v>(voxels: &'v [Voxel], slots: &[u16], p: Vec3, resolution: f32, slot: u32) -> Option<(usize, &'v Voxel)> {
+pub fn voxel_at<'v>(
+    voxels: &'v [Voxel],
+    slots: &[u16],
+    p: Vec3,
+    resolution: f32,
+    slot: u32,
+) -> Option<(usize, &'v Voxel)> {
     let i = voxel_key(p, resolution, slot).and_then(|k| find_voxel(voxels, slots, k))?;
     voxels.get(i).map(|v| (i, v))
 }

@@ -112,8 +112,11 @@ pub fn smooth(previous: &Superquadric, aligned: &Superquadric, params: &Params) 
         rotation: linalg::matrix_from_quat(q),
         // Clamped to the bounds: an average of in-bound values can round a last bit outside them.
         scales: ema3(previous.scales, aligned.scales, params.alpha_s).map(|a| a.max(MIN_SCALE)),
-        eps: [ema(previous.eps[0], aligned.eps[0], params.alpha_s), ema(previous.eps[1], aligned.eps[1], params.alpha_s)]
-            .map(|e| e.clamp(EPS_RANGE.0, EPS_RANGE.1)),
+        eps: [
+            ema(previous.eps[0], aligned.eps[0], params.alpha_s),
+            ema(previous.eps[1], aligned.eps[1], params.alpha_s),
+        ]
+        .map(|e| e.clamp(EPS_RANGE.0, EPS_RANGE.1)),
     }
 }
 
@@ -208,9 +211,11 @@ impl<'a> Tracker<'a> {
     /// The remembered refusal of label `class` nearest to `centre` (tracking frame) within `d_max` that was
     /// refused in the previous frame and not yet in this one.
     fn recent_refusal(&self, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
-        let recent = self.refusals.iter().enumerate().filter(|(_, r)| {
-            r.count > 0 && r.class == class && r.last_frame.wrapping_add(1) == self.frame
-        });
+        let recent = self
+            .refusals
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| r.count > 0 && r.class == class && r.last_frame.wrapping_add(1) == self.frame);
         nearest_within(recent.map(|(i, r)| (i, r.centre)), centre, params.d_max)
     }
 
@@ -239,11 +244,14 @@ impl<'a> Tracker<'a> {
                 .refusals
                 .iter()
                 .enumerate()
-                .min_by_key(|(_, r)| if r.count == 0 || r.last_frame.wrapping_add(1) < frame { 0 } else { r.last_frame.max(1) })
+                .min_by_key(
+                    |(_, r)| if r.count == 0 || r.last_frame.wrapping_add(1) < frame { 0 } else { r.last_frame.max(1) },
+                )
                 .map(|(i, _)| i),
         };
         if let Some(r) = slot.and_then(|i| self.refusals.get_mut(i)) {
-            let count = if r.count > 0 && r.class == class && r.last_frame.wrapping_add(1) == frame { r.count } else { 0 };
+            let count =
+                if r.count > 0 && r.class == class && r.last_frame.wrapping_add(1) == frame { r.count } else { 0 };
             *r = Refusal { centre, class, count: count.saturating_add(1), last_frame: frame };
         }
     }
@@ -279,7 +287,8 @@ impl<'a> Tracker<'a> {
     /// Equations 14–15: the nearest track of label `class` within `d_max` of `centre` that has not been
     /// updated in this frame.
     pub fn nearest(&self, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
-        let open = self.tracks.as_slice().iter().enumerate().filter(|(_, t)| t.class == class && t.last_frame != self.frame);
+        let open =
+            self.tracks.as_slice().iter().enumerate().filter(|(_, t)| t.class == class && t.last_frame != self.frame);
         nearest_within(open.map(|(i, t)| (i, t.sq.centre)), centre, params.d_max)
     }
 
@@ -301,7 +310,14 @@ impl<'a> Tracker<'a> {
                 t.last_frame = frame;
                 t.updates += 1;
                 t.last_jump_deg = jump.to_degrees();
-                return Updated { index: Some(i), new: false, jump_deg: t.last_jump_deg, sq: smoothed, gated: false, step_m };
+                return Updated {
+                    index: Some(i),
+                    new: false,
+                    jump_deg: t.last_jump_deg,
+                    sq: smoothed,
+                    gated: false,
+                    step_m,
+                };
             }
         }
         let track = Track { sq: *sq, id: self.next_id, class, last_frame: frame, updates: 1, last_jump_deg: 0.0 };
@@ -379,7 +395,8 @@ mod tests {
         let previous = boxlike(r, [0.3, 0.2, 0.1]);
         let noise = linalg::rotation_from_vector([0.004, -0.003, 0.005]); // about 0.4°
         for (k, (re, se)) in equivalents(&r, previous.scales).into_iter().enumerate() {
-            let det = linalg::dot(linalg::cross(linalg::column(&re, 0), linalg::column(&re, 1)), linalg::column(&re, 2));
+            let det =
+                linalg::dot(linalg::cross(linalg::column(&re, 0), linalg::column(&re, 1)), linalg::column(&re, 2));
             assert!((det - 1.0).abs() < 1e-5, "equivalent {k} is a proper rotation");
             let measured = boxlike(linalg::mat_mul(&re, &noise), se);
             let aligned = align(&previous, &measured);
@@ -413,7 +430,11 @@ mod tests {
     #[test]
     fn smoothing_at_the_bounds_stays_within_them() {
         let params = Params::default();
-        let at_bounds = Superquadric { scales: [MIN_SCALE, 0.2, 0.3], eps: [EPS_RANGE.0, EPS_RANGE.1], ..boxlike(linalg::IDENTITY, [0.1; 3]) };
+        let at_bounds = Superquadric {
+            scales: [MIN_SCALE, 0.2, 0.3],
+            eps: [EPS_RANGE.0, EPS_RANGE.1],
+            ..boxlike(linalg::IDENTITY, [0.1; 3])
+        };
         let mut state = at_bounds;
         for _ in 0..50 {
             state = smooth(&state, &at_bounds, &params);

@@ -214,7 +214,8 @@ pub fn encode_streaming(
         Primitive::Gmm(_) => gmms += 1,
     });
     let count = |n: usize| u16::try_from(n).map_err(|_| WireError::TooManyPrimitives);
-    let header = Header { magic: MAGIC, version: VERSION, frame, planes: count(planes)?, sqs: count(sqs)?, gmms: count(gmms)? };
+    let header =
+        Header { magic: MAGIC, version: VERSION, frame, planes: count(planes)?, sqs: count(sqs)?, gmms: count(gmms)? };
     let mut crc = 0xFFFF_FFFFu32;
     let mut total = 0usize;
     let mut emit = |bytes: &[u8], crc: &mut u32| -> Result<(), WireError> {
@@ -352,7 +353,12 @@ fn sq_of(w: WireSq) -> Result<MapSq, WireError> {
     }
     let eps = |e: u16| EPS_RANGE.0 + (EPS_RANGE.1 - EPS_RANGE.0) * e as f32 / 65535.0;
     Ok(MapSq {
-        sq: Superquadric { scales, eps: [eps(w.eps[0]), eps(w.eps[1])], centre: from_mm(w.centre), rotation: rotation_of(w.rotation)? },
+        sq: Superquadric {
+            scales,
+            eps: [eps(w.eps[0]), eps(w.eps[1])],
+            centre: from_mm(w.centre),
+            rotation: rotation_of(w.rotation)?,
+        },
         instance: w.instance,
         class: w.class,
         score: w.score as f32 / 255.0,

@@ -59,7 +59,9 @@ fn malformed_frames_are_errors() {
         assert_eq!(m.process(frame(&stuck, &colour), None).unwrap_err(), FrameError::ConstantDepth { raw: 7000 });
         use m2smap_core::Pose;
         let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        assert!(m.process(Frame { pose: Some(Pose { rotation: identity, translation: [1.0, 2.0, 3.0] }), ..good }, None).is_ok());
+        assert!(m
+            .process(Frame { pose: Some(Pose { rotation: identity, translation: [1.0, 2.0, 3.0] }), ..good }, None)
+            .is_ok());
         for bad in [
             Pose { rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]], translation: [0.0; 3] }, // a reflection
             Pose { rotation: [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0; 3] },
@@ -79,11 +81,9 @@ fn frames_larger_than_the_profile_are_refused() {
     let (w, h) = (800u16, 600u16);
     let depth = vec![5000u16; w as usize * h as usize];
     let colour = vec![0u8; depth.len() * 3];
-    let f = Frame { width: w, height: h, depth: &depth, depth_scale: 5000.0, colour: &colour, intrinsics: K, pose: None };
-    assert_eq!(
-        mapper.process(f, None).unwrap_err(),
-        FrameError::TooLarge { pixels: 480_000, max_pixels: 640 * 480 }
-    );
+    let f =
+        Frame { width: w, height: h, depth: &depth, depth_scale: 5000.0, colour: &colour, intrinsics: K, pose: None };
+    assert_eq!(mapper.process(f, None).unwrap_err(), FrameError::TooLarge { pixels: 480_000, max_pixels: 640 * 480 });
 }
 
 #[test]

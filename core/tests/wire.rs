@@ -87,7 +87,8 @@ fn round_trip_is_identical_and_within_a_millimetre() {
         // Every reconstruction sample lies within 1 mm of one of the unquantised map's, and vice versa (a
         // superquadric sample at the visibility boundary may flip sides; counts agree to 1 %).
         let mut worst = 0.0f32;
-        let nearest = |p: Vec3, set: &[Vec3]| set.iter().map(|q| linalg::norm(linalg::sub(p, *q))).fold(f32::MAX, f32::min);
+        let nearest =
+            |p: Vec3, set: &[Vec3]| set.iter().map(|q| linalg::norm(linalg::sub(p, *q))).fold(f32::MAX, f32::min);
         for (a, b) in prims.iter().zip(&decoded) {
             let (sa, sb) = (samples(a), samples(b));
             assert!(sa.len().abs_diff(sb.len()) * 100 <= sa.len(), "{} vs {} samples", sa.len(), sb.len());

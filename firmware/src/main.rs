@@ -29,7 +29,7 @@ use defmt_semihosting as _;
 use embedded_alloc::LlffHeap;
 use m2smap_core::wire::{self, WireError};
 use m2smap_core::{
-    Frame, FrameError, FrameReport, Instance, Intrinsics, MaskPixels, MaskSet, Mapper, McuStorage, Params, Pose,
+    Frame, FrameError, FrameReport, Instance, Intrinsics, Mapper, MaskPixels, MaskSet, McuStorage, Params, Pose,
 };
 
 /// Byte arrays with 4-byte alignment, so raw depth can be viewed as `u16`.
@@ -191,7 +191,14 @@ fn stack_high_water() -> usize {
 /// Logs one frame's lines. Not inlined: the log calls stay out of `main`, where the pipeline is inlined, so how
 /// the image logs does not change the code that is measured.
 #[inline(never)]
-fn log_frame(i: usize, per_tick: f64, t: &[u64; 8], encoded: Result<usize, WireError>, last4: [u8; 4], report: &FrameReport) {
+fn log_frame(
+    i: usize,
+    per_tick: f64,
+    t: &[u64; 8],
+    encoded: Result<usize, WireError>,
+    last4: [u8; 4],
+    report: &FrameReport,
+) {
     let n = match encoded {
         Ok(n) => n,
         Err(e) => {
@@ -209,7 +216,12 @@ fn log_frame(i: usize, per_tick: f64, t: &[u64; 8], encoded: Result<usize, WireE
     );
     defmt::println!(
         "frame {=usize} gaussians {=u32} planes {=u32} sqs {=u32} gmms {=u32} overflow_events {=u32}",
-        i, report.gaussians, report.planes, report.sqs, report.gmms, report.overflow_events
+        i,
+        report.gaussians,
+        report.planes,
+        report.sqs,
+        report.gmms,
+        report.overflow_events
     );
     // The whole report through the core's `defmt::Format` derive (feature `defmt`).
     defmt::println!("frame {=usize} report {}", i, report);
@@ -281,7 +293,12 @@ fn main() -> ! {
             intrinsics: frames::INTRINSICS,
             pose: f.pose,
         };
-        let masks = MaskSet { width: frames::WIDTH, height: frames::HEIGHT, instances: f.instances, pixels: MaskPixels::BitPlanes(f.masks) };
+        let masks = MaskSet {
+            width: frames::WIDTH,
+            height: frames::HEIGHT,
+            instances: f.instances,
+            pixels: MaskPixels::BitPlanes(f.masks),
+        };
         // What `Mapper::process` runs, stage by stage, then the map encoding: SysTick read at each stage boundary,
         // the allocation count read before and after all of it (outside the timed window).
         let mut t = [0u64; 8];

@@ -63,7 +63,14 @@ impl Timing {
 /// forgotten right before the superquadric stage (every object is fitted from its initial guesses). With
 /// `segmented` the masks join only after stage 3, as in `Mapper::process_segmented` (voxels without mask slots,
 /// the Gaussians the segmenter's masks were made from).
-fn bench<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &Frames, cold: bool, segmented: bool) -> Timing {
+fn bench<P: Profile>(
+    storage: &mut P,
+    params: Params,
+    camera: &Camera,
+    frames: &Frames,
+    cold: bool,
+    segmented: bool,
+) -> Timing {
     let mut t = Timing::default();
     let mut mapper = Mapper::new(&mut *storage, params).expect("valid parameters");
     for input in frames {
@@ -104,7 +111,12 @@ fn bench<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &
 /// The frames with the geometric segmenter's masks (`Mapper::process_segmented`, as `m2smap run --segmenter
 /// geometric`), each frame run `REPS` times in the schedule of [`bench`]: the masked frames, and per (frame,
 /// repetition) the milliseconds of `process_segmented` (segmenter included) and its report.
-fn segmenter_frames<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &Frames) -> (Frames, Vec<f64>, Vec<FrameReport>) {
+fn segmenter_frames<P: Profile>(
+    storage: &mut P,
+    params: Params,
+    camera: &Camera,
+    frames: &Frames,
+) -> (Frames, Vec<f64>, Vec<FrameReport>) {
     let mut labels = LabelTable::default();
     let class = labels.class_of("object");
     let mut instances = vec![Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
@@ -121,7 +133,12 @@ fn segmenter_frames<P: Profile>(storage: &mut P, params: Params, camera: &Camera
             reports.push(report);
             k = n;
         }
-        let masks = FrameMasks { width: input.frame.width, height: input.frame.height, instances: instances[..k].to_vec(), pixels: Pixels::Ids(ids) };
+        let masks = FrameMasks {
+            width: input.frame.width,
+            height: input.frame.height,
+            instances: instances[..k].to_vec(),
+            pixels: Pixels::Ids(ids),
+        };
         out.push(Input { frame: input.frame.clone(), masks: Some(masks), pose: input.pose });
     }
     (out, ms, reports)
@@ -132,7 +149,12 @@ fn segmenter_frames<P: Profile>(storage: &mut P, params: Params, camera: &Camera
 /// replayed as `process_segmented` runs them, checked to map the same. Returns the stage timing, the masked
 /// frames and the segmenter's own milliseconds per (frame, repetition) (process_segmented's total minus the
 /// replay's).
-fn bench_segmented<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &Frames) -> (Timing, Frames, Vec<f64>) {
+fn bench_segmented<P: Profile>(
+    storage: &mut P,
+    params: Params,
+    camera: &Camera,
+    frames: &Frames,
+) -> (Timing, Frames, Vec<f64>) {
     let (masked, whole, reports) = segmenter_frames(&mut *storage, params, camera, frames);
     let t = bench(&mut *storage, params, camera, &masked, false, true);
     let same = |a: &FrameReport, b: &FrameReport| {
@@ -148,7 +170,12 @@ fn bench_segmented<P: Profile>(storage: &mut P, params: Params, camera: &Camera,
 /// Prints one table row.
 fn row(name: &str, frames: usize, t: &Timing) {
     let cells: Vec<String> = t.times.iter().map(|v| format!("{:.3}", median(v))).collect();
-    println!("| {name} | {frames} | {} | {:.1} | {:.0} |", cells.join(" | "), median(&t.gaussians), 1e3 / median(&t.times[6]));
+    println!(
+        "| {name} | {frames} | {} | {:.1} | {:.0} |",
+        cells.join(" | "),
+        median(&t.gaussians),
+        1e3 / median(&t.times[6])
+    );
 }
 
 /// The cold-fit line of a dataset (host profile, `full`), from a [`bench`] pass with `cold`.
@@ -209,15 +236,25 @@ fn main() {
     match load("7scenes_redkitchen", 60) {
         Some((camera, posed)) => {
             let (name, frames) = ("7scenes_redkitchen", unposed(&posed));
-            row(&format!("{name} (host, no masks)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false, false));
-            row(&format!("{name} (mcu, no masks)"), frames.len(), &bench(&mut *mcu, full, &camera, &frames, false, false));
+            row(
+                &format!("{name} (host, no masks)"),
+                frames.len(),
+                &bench(&mut *host, full, &camera, &frames, false, false),
+            );
+            row(
+                &format!("{name} (mcu, no masks)"),
+                frames.len(),
+                &bench(&mut *mcu, full, &camera, &frames, false, false),
+            );
             // The segmenter's masks, as `m2smap run --segmenter geometric` (which maps with the dataset's poses).
             let (t, masked, _) = bench_segmented(&mut *host, full, &camera, &posed);
             row(&format!("{name} (host, segmenter masks)"), posed.len(), &t);
             let (t, _, seg) = bench_segmented(&mut *host, mmp, &camera, &posed);
             row(&format!("{name} (host, segmenter masks, mmp)"), posed.len(), &t);
             // The segmenter's own time from the mmp pair (no superquadric search, so little timing noise).
-            let instances = median(&masked.iter().map(|f| f.masks.as_ref().map_or(0.0, |m| m.instances.len() as f64)).collect::<Vec<_>>());
+            let instances = median(
+                &masked.iter().map(|f| f.masks.as_ref().map_or(0.0, |m| m.instances.len() as f64)).collect::<Vec<_>>(),
+            );
             notes.push(format!(
                 "{name}: the geometric segmenter itself takes {:.3} ms per frame more, in neither row's stage columns (process_segmented minus the staged replay, variant mmp; median {instances:.0} instances per frame)",
                 median(&seg)
@@ -231,8 +268,16 @@ fn main() {
     match load("ycbv_0000", 10) {
         Some((camera, frames)) => {
             let name = "ycbv_0000";
-            row(&format!("{name} (host, gt masks)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false, false));
-            row(&format!("{name} (host, gt masks, mmp)"), frames.len(), &bench(&mut *host, mmp, &camera, &frames, false, false));
+            row(
+                &format!("{name} (host, gt masks)"),
+                frames.len(),
+                &bench(&mut *host, full, &camera, &frames, false, false),
+            );
+            row(
+                &format!("{name} (host, gt masks, mmp)"),
+                frames.len(),
+                &bench(&mut *host, mmp, &camera, &frames, false, false),
+            );
             let t = bench(&mut *host, full, &camera, &frames, true, false);
             cold.push(cold_line(&format!("{name} (gt masks)"), frames.len(), &t));
         }
@@ -248,7 +293,11 @@ fn main() {
                 Input { frame: f.frame, masks: Some(masks), pose: None }
             })
             .collect();
-        row(&format!("synthetic {scene} (host)"), frames.len(), &bench(&mut *host, full, &s.camera, &frames, false, false));
+        row(
+            &format!("synthetic {scene} (host)"),
+            frames.len(),
+            &bench(&mut *host, full, &s.camera, &frames, false, false),
+        );
         let t = bench(&mut *host, full, &s.camera, &frames, true, false);
         cold.push(cold_line(&format!("synthetic {scene} (perfect masks)"), frames.len(), &t));
     }
@@ -258,7 +307,9 @@ fn main() {
         println!("{n}");
     }
     println!("\ncold superquadric fits (host, full; every track forgotten right before the superquadric stage; median ms of the stage per object fitted, accepted or rejected)\n");
-    println!("| data (masks) | frames | fits | objects fitted per frame | superquadrics ms per frame | ms per cold fit |");
+    println!(
+        "| data (masks) | frames | fits | objects fitted per frame | superquadrics ms per frame | ms per cold fit |"
+    );
     println!("|---|---:|---:|---:|---:|---:|");
     for c in &cold {
         println!("{c}");

@@ -5,8 +5,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
-use m2smap_core::{Frame, Intrinsics};
 use glam::{DMat3, DQuat, DVec3};
+use m2smap_core::{Frame, Intrinsics};
 use serde::{Deserialize, Serialize};
 
 /// Largest rgb/depth timestamp difference of an association, seconds (TUM's `associate.py` default).
@@ -44,7 +44,15 @@ impl Camera {
             "fr1" => Some(tum(517.3, 516.5, 318.6, 255.3)),
             "fr2" => Some(tum(520.9, 521.0, 325.1, 249.7)),
             "fr3" => Some(tum(535.4, 539.2, 320.1, 247.6)),
-            "7scenes" => Some(Camera { fx: 585.0, fy: 585.0, cx: 320.0, cy: 240.0, width: 640, height: 480, depth_scale: 1000.0 }),
+            "7scenes" => Some(Camera {
+                fx: 585.0,
+                fy: 585.0,
+                cx: 320.0,
+                cy: 240.0,
+                width: 640,
+                height: 480,
+                depth_scale: 1000.0,
+            }),
             _ => None,
         }
     }
@@ -86,10 +94,7 @@ impl Pose {
     /// The core's single-precision pose.
     pub fn to_core(&self) -> m2smap_core::Pose {
         let r = self.rotation();
-        m2smap_core::Pose {
-            rotation: r.map(|row| row.map(|x| x as f32)),
-            translation: self.t.map(|x| x as f32),
-        }
+        m2smap_core::Pose { rotation: r.map(|row| row.map(|x| x as f32)), translation: self.t.map(|x| x as f32) }
     }
 
     /// Maps a camera-frame point to the world frame.
@@ -216,9 +221,13 @@ pub fn parse_trajectory(text: &str) -> Result<Vec<(f64, Pose)>> {
     let entries = parse_list(text, 7)?;
     let mut out = Vec::with_capacity(entries.len());
     for e in entries {
-        let v: Vec<f64> = e.fields.iter().take(7).map(|s| s.parse::<f64>()).collect::<Result<_, _>>().map_err(
-            |_| anyhow!(" malformed pose at timestamp {}", e.timestamp),
-        )?;
+        let v: Vec<f64> = e
+            .fields
+            .iter()
+            .take(7)
+            .map(|s| s.parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| anyhow!(" malformed pose at timestamp {}", e.timestamp))?;
         if v.iter().any(|x| !x.is_finite()) {
             bail!(" non-finite pose at timestamp {}", e.timestamp);
         }
@@ -280,7 +289,10 @@ pub struct Dataset {
 /// The TUM sequence (`fr1`, `fr2`, `fr3`) that a folder's name names, if any (`freiburg1` reads as `fr1`).
 pub fn preset_in_name(root: &Path) -> Option<&'static str> {
     let name = root.file_name()?.to_string_lossy().to_lowercase();
-    ["freiburg1", "freiburg2", "freiburg3", "fr1", "fr2", "fr3"].into_iter().find(|k| name.contains(*k)).and_then(preset_key)
+    ["freiburg1", "freiburg2", "freiburg3", "fr1", "fr2", "fr3"]
+        .into_iter()
+        .find(|k| name.contains(*k))
+        .and_then(preset_key)
 }
 
 /// The TUM preset a camera name stands for (`fr1`…`fr3`, also spelled `freiburg1`…`freiburg3`).

@@ -33,7 +33,11 @@ fn dominant(counts: &HashMap<u16, u32>) -> u16 {
 
 /// N_adh and A_s of the last frame; `reference(u, v)` is the reference label of a pixel (ground-truth instance
 /// image when the dataset has one, else the input mask id; 0 = no object).
-pub fn semantic_metrics(mapper: &Mapper<'_>, checked: &CheckedFrame<'_>, reference: impl Fn(u16, u16) -> u16) -> SemanticMetrics {
+pub fn semantic_metrics(
+    mapper: &Mapper<'_>,
+    checked: &CheckedFrame<'_>,
+    reference: impl Fn(u16, u16) -> u16,
+) -> SemanticMetrics {
     let gaussians = mapper.gaussians();
     let mut per_gaussian: Vec<HashMap<u16, u32>> = vec![HashMap::new(); gaussians.len()];
     mapper.for_each_labelled_point(checked, |p, v| {

@@ -55,7 +55,17 @@ pub fn write_ply(path: &Path, vertices: &[Vertex]) -> Result<()> {
     let mut s = String::with_capacity(64 * vertices.len() + 256);
     s.push_str("ply\nformat ascii 1.0\ncomment m2smap map reconstruction samples\n");
     writeln!(s, "element vertex {}", vertices.len())?;
-    for prop in ["float x", "float y", "float z", "uchar red", "uchar green", "uchar blue", "uint primitive", "uchar kind", "int instance"] {
+    for prop in [
+        "float x",
+        "float y",
+        "float z",
+        "uchar red",
+        "uchar green",
+        "uchar blue",
+        "uint primitive",
+        "uchar kind",
+        "int instance",
+    ] {
         writeln!(s, "property {prop}")?;
     }
     s.push_str("end_header\n");
@@ -72,7 +82,8 @@ pub fn write_ply(path: &Path, vertices: &[Vertex]) -> Result<()> {
 /// Reads back the vertex count and vertex lines of an ASCII PLY written by [`write_ply`].
 pub fn read_ply_vertices(path: &Path) -> Result<Vec<Vertex>> {
     let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    let (header, body) = text.split_once("end_header\n").with_context(|| format!("{}: no PLY header", path.display()))?;
+    let (header, body) =
+        text.split_once("end_header\n").with_context(|| format!("{}: no PLY header", path.display()))?;
     let count: usize = header
         .lines()
         .find_map(|l| l.strip_prefix("element vertex ").and_then(|n| n.trim().parse().ok()))

@@ -4,8 +4,8 @@
 
 use serde::Serialize;
 
-use crate::dataset::Pose;
 use crate::dataset::LoadedFrame;
+use crate::dataset::Pose;
 
 /// One injected fault.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

@@ -11,7 +11,7 @@ use std::fs;
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Context, Result};
-use m2smap_core::{Frame, Instance, MaskPixels, MaskSet, Mapper, McuStorage, Params, Pose};
+use m2smap_core::{Frame, Instance, Mapper, MaskPixels, MaskSet, McuStorage, Params, Pose};
 
 use crate::dataset::Dataset;
 use crate::masks::{read_frame_masks, LabelTable};
@@ -37,7 +37,12 @@ pub struct FirmwareFrame {
 
 impl FirmwareFrame {
     fn masks(&self) -> MaskSet<'_> {
-        MaskSet { width: self.size.0, height: self.size.1, instances: &self.instances, pixels: MaskPixels::BitPlanes(&self.bits) }
+        MaskSet {
+            width: self.size.0,
+            height: self.size.1,
+            instances: &self.instances,
+            pixels: MaskPixels::BitPlanes(&self.bits),
+        }
     }
 }
 
@@ -164,7 +169,15 @@ pub fn export(dataset: &Dataset, n: usize, out: &Path) -> Result<()> {
         let instances: Vec<String> = f
             .instances
             .iter()
-            .map(|i| format!("Instance {{ id: {}, class: {}, score: {}, bbox: {:?} }}", i.id, i.class, bits_of(i.score), i.bbox))
+            .map(|i| {
+                format!(
+                    "Instance {{ id: {}, class: {}, score: {}, bbox: {:?} }}",
+                    i.id,
+                    i.class,
+                    bits_of(i.score),
+                    i.bbox
+                )
+            })
             .collect();
         writeln!(src, "    FrameData {{")?;
         writeln!(src, "        depth: &DEPTH{i}.0,")?;

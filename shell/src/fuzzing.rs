@@ -2,7 +2,7 @@
 //! corpus and every past crash without nightly (`tests/fuzz_replay.rs`). Each must return for any input and
 //! never panic.
 
-use m2smap_core::{Frame, Instance, Intrinsics, MaskPixels, MaskSet, Mapper, Params, Pose, TinyStorage};
+use m2smap_core::{Frame, Instance, Intrinsics, Mapper, MaskPixels, MaskSet, Params, Pose, TinyStorage};
 
 use crate::dataset::{parse_intrinsics, parse_list, parse_pose_matrix, parse_trajectory};
 use crate::masks::{parse_id_masks, parse_yolo, LabelTable};
@@ -51,7 +51,8 @@ pub fn mapper_frame(data: &[u8]) {
     };
     let depth_scale = if plausible { 5000.0 } else { b.f32() };
     let base = 2000 + b.u16() % 10_000;
-    let depth: Vec<u16> = (0..pixels).map(|i| if b.0.is_empty() { base.wrapping_add(i as u16 % 97) } else { b.u16() }).collect();
+    let depth: Vec<u16> =
+        (0..pixels).map(|i| if b.0.is_empty() { base.wrapping_add(i as u16 % 97) } else { b.u16() }).collect();
     let colour: Vec<u8> = (0..pixels * 3).map(|_| b.u8()).collect();
     let count = (b.u8() % 4) as usize;
     let instances: Vec<Instance> = (0..count)
@@ -65,7 +66,10 @@ pub fn mapper_frame(data: &[u8]) {
     let ids: Vec<u16> = (0..pixels).map(|_| (b.u8() % 5) as u16).collect();
     let pose = match b.u8() % 3 {
         0 => None,
-        1 => Some(Pose { rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [b.f32(), 0.0, 0.0] }),
+        1 => Some(Pose {
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation: [b.f32(), 0.0, 0.0],
+        }),
         _ => Some(Pose { rotation: [[b.f32(), 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0; 3] }),
     };
     let mut storage = bytemuck::zeroed_box::<TinyStorage>();

@@ -4,13 +4,13 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::Context;
 use anyhow::{anyhow, Result};
 use clap::{Parser, Subcommand};
-use m2smap::run::{run, ProfileChoice, RunOptions, Segmenter};
-use anyhow::Context;
 use m2smap::dataset::Dataset;
 use m2smap::masks::{mask_dir, LabelTable};
 use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
+use m2smap::run::{run, ProfileChoice, RunOptions, Segmenter};
 use m2smap::{budget, export, render, report, synth};
 use m2smap_core::{HostStorage, Mapper, McuStorage, Params, TinyStorage};
 
@@ -97,7 +97,13 @@ fn with_mapper(
     let masks_dir = mask_dir(&d.root, masks.as_deref());
     let mut labels = LabelTable::default();
     let mut seg = SegmenterBuffers::default();
-    f(Session { dataset: &d, mapper: &mut mapper, source: mask_source(&masks_dir, segmenter), labels: &mut labels, seg: &mut seg })
+    f(Session {
+        dataset: &d,
+        mapper: &mut mapper,
+        source: mask_source(&masks_dir, segmenter),
+        labels: &mut labels,
+        seg: &mut seg,
+    })
 }
 
 /// Mask files when they exist and no segmenter was asked for; the segmenter otherwise.
@@ -285,7 +291,20 @@ fn main() -> ExitCode {
 
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { dataset, out, variant, frames, config, camera, profile, downscale, masks, segmenter, faults, fault_rate } => {
+        Command::Run {
+            dataset,
+            out,
+            variant,
+            frames,
+            config,
+            camera,
+            profile,
+            downscale,
+            masks,
+            segmenter,
+            faults,
+            fault_rate,
+        } => {
             let variant = match variant {
                 Some(name) => Some(parse_variant(&name)?),
                 None => None,
@@ -357,8 +376,12 @@ fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Synth { scene, frames, seed, no_noise, out, mask_erode, mask_dilate, mask_miss, mask_score_noise } => {
-            let degradation =
-                synth::Degradation { erode: mask_erode, dilate: mask_dilate, miss: mask_miss, score_noise: mask_score_noise };
+            let degradation = synth::Degradation {
+                erode: mask_erode,
+                dilate: mask_dilate,
+                miss: mask_miss,
+                score_noise: mask_score_noise,
+            };
             synth::Scene::named(&scene)?.write_tum_degraded(&out, frames, seed, !no_noise, &degradation)?;
             println!("wrote {frames} frames of scene {scene} to {}", out.display());
             Ok(())
@@ -369,57 +392,73 @@ fn execute(cli: Cli) -> Result<()> {
             println!("wrote {frames} firmware frames and expected.txt to {}", out.display());
             Ok(())
         }
-        Command::Render { dataset, frame, out, masks, segmenter, view, angle, how } => with_mapper(&dataset, &how, masks, segmenter, |s| {
-            check_frame(s.dataset, frame)?;
-            let map_view = match (view, angle) {
-                (ViewChoice::Camera, None) => None,
-                (ViewChoice::Orbit, None) => Some(render::MapView::Orbit),
-                (ViewChoice::Orbit, Some(a)) if a.is_finite() => Some(render::MapView::OrbitAt(a)),
-                (ViewChoice::Top, None) => Some(render::MapView::Top),
-                (_, Some(a)) => anyhow::bail!("--angle {a} goes with --view orbit and must be a number of degrees"),
-            };
-            let m = map_frame(s.mapper, s.dataset, frame, s.source, s.labels, s.seg)?;
-            let fv = m.loaded.view(&s.dataset.camera);
-            match map_view {
-                None => render::render_panels(s.mapper, &fv, m.masks.as_ref(), &out)?,
-                Some(v) => {
-                    render::render_views(s.mapper, &fv, v, &out)?;
-                }
-            }
-            println!("frame {frame}: {} planes, {} SQs, {} GMMs -> {}", m.report.planes, m.report.sqs, m.report.gmms, out.display());
-            Ok(())
-        }),
-        Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter, how } => with_mapper(&dataset, &how, masks, segmenter, |s| {
-            let d = s.dataset;
-            if !all_frames {
-                check_frame(d, frame)?;
-            }
-            let frames: Vec<usize> = if all_frames { (0..d.frames.len()).collect() } else { (0..=frame).collect() };
-            // --world needs the pose of every exported frame: known before any mapping.
-            let exported = |k: &usize| all_frames || *k == frame;
-            if let Some(k) = frames.iter().filter(|k| exported(k)).find(|&&k| world && d.frames.get(k).is_none_or(|f| f.pose.is_none())) {
-                anyhow::bail!("{}: --world needs camera poses, frame {k} has none", d.root.display());
-            }
-            if all_frames {
-                std::fs::create_dir_all(&ply).with_context(|| format!("{}: cannot create", ply.display()))?;
-            }
-            for k in frames {
-                map_frame(s.mapper, d, k, s.source, s.labels, s.seg)?;
-                if !all_frames && k != frame {
-                    continue; // earlier frames only warm the superquadric tracks
-                }
-                let pose = match (world, d.frames[k].pose.as_ref()) {
-                    (true, Some(p)) => Some(p),
-                    (true, None) => anyhow::bail!("{}: --world needs camera poses, frame {k} has none", d.root.display()),
-                    (false, _) => None,
+        Command::Render { dataset, frame, out, masks, segmenter, view, angle, how } => {
+            with_mapper(&dataset, &how, masks, segmenter, |s| {
+                check_frame(s.dataset, frame)?;
+                let map_view = match (view, angle) {
+                    (ViewChoice::Camera, None) => None,
+                    (ViewChoice::Orbit, None) => Some(render::MapView::Orbit),
+                    (ViewChoice::Orbit, Some(a)) if a.is_finite() => Some(render::MapView::OrbitAt(a)),
+                    (ViewChoice::Top, None) => Some(render::MapView::Top),
+                    (_, Some(a)) => anyhow::bail!("--angle {a} goes with --view orbit and must be a number of degrees"),
                 };
-                let path = if all_frames { ply.join(format!("frame_{k:06}.ply")) } else { ply.clone() };
-                let v = export::vertices(s.mapper, pose);
-                export::write_ply(&path, &v)?;
-                println!("frame {k}: {} vertices -> {}", v.len(), path.display());
-            }
-            Ok(())
-        }),
+                let m = map_frame(s.mapper, s.dataset, frame, s.source, s.labels, s.seg)?;
+                let fv = m.loaded.view(&s.dataset.camera);
+                match map_view {
+                    None => render::render_panels(s.mapper, &fv, m.masks.as_ref(), &out)?,
+                    Some(v) => {
+                        render::render_views(s.mapper, &fv, v, &out)?;
+                    }
+                }
+                println!(
+                    "frame {frame}: {} planes, {} SQs, {} GMMs -> {}",
+                    m.report.planes,
+                    m.report.sqs,
+                    m.report.gmms,
+                    out.display()
+                );
+                Ok(())
+            })
+        }
+        Command::Export { dataset, frame, ply, all_frames, world, masks, segmenter, how } => {
+            with_mapper(&dataset, &how, masks, segmenter, |s| {
+                let d = s.dataset;
+                if !all_frames {
+                    check_frame(d, frame)?;
+                }
+                let frames: Vec<usize> = if all_frames { (0..d.frames.len()).collect() } else { (0..=frame).collect() };
+                // --world needs the pose of every exported frame: known before any mapping.
+                let exported = |k: &usize| all_frames || *k == frame;
+                if let Some(k) = frames
+                    .iter()
+                    .filter(|k| exported(k))
+                    .find(|&&k| world && d.frames.get(k).is_none_or(|f| f.pose.is_none()))
+                {
+                    anyhow::bail!("{}: --world needs camera poses, frame {k} has none", d.root.display());
+                }
+                if all_frames {
+                    std::fs::create_dir_all(&ply).with_context(|| format!("{}: cannot create", ply.display()))?;
+                }
+                for k in frames {
+                    map_frame(s.mapper, d, k, s.source, s.labels, s.seg)?;
+                    if !all_frames && k != frame {
+                        continue; // earlier frames only warm the superquadric tracks
+                    }
+                    let pose = match (world, d.frames[k].pose.as_ref()) {
+                        (true, Some(p)) => Some(p),
+                        (true, None) => {
+                            anyhow::bail!("{}: --world needs camera poses, frame {k} has none", d.root.display())
+                        }
+                        (false, _) => None,
+                    };
+                    let path = if all_frames { ply.join(format!("frame_{k:06}.ply")) } else { ply.clone() };
+                    let v = export::vertices(s.mapper, pose);
+                    export::write_ply(&path, &v)?;
+                    println!("frame {k}: {} vertices -> {}", v.len(), path.display());
+                }
+                Ok(())
+            })
+        }
         Command::Budget => {
             print!("{}", budget::table());
             Ok(())
@@ -431,7 +470,11 @@ fn execute(cli: Cli) -> Result<()> {
 fn check_frame(d: &m2smap::dataset::Dataset, frame: usize) -> Result<()> {
     let n = d.frames.len();
     if frame >= n {
-        anyhow::bail!("{}: --frame {frame} is beyond the last frame (the dataset has {n}, numbered 0–{})", d.root.display(), n.saturating_sub(1));
+        anyhow::bail!(
+            "{}: --frame {frame} is beyond the last frame (the dataset has {n}, numbered 0–{})",
+            d.root.display(),
+            n.saturating_sub(1)
+        );
     }
     Ok(())
 }

@@ -112,7 +112,12 @@ impl FrameMasks {
             .instances
             .iter()
             .map(|i| Instance {
-                bbox: [scale(i.bbox[0], width), scale(i.bbox[1], height), scale(i.bbox[2], width), scale(i.bbox[3], height)],
+                bbox: [
+                    scale(i.bbox[0], width),
+                    scale(i.bbox[1], height),
+                    scale(i.bbox[2], width),
+                    scale(i.bbox[3], height),
+                ],
                 ..*i
             })
             .collect();
@@ -122,7 +127,10 @@ impl FrameMasks {
     /// Instance id of the first instance containing pixel (u, v), 0 for none (the reference label of docs/metrics.md).
     pub fn id_at(&self, u: u16, v: u16) -> u16 {
         let view = self.view();
-        (0..self.instances.len()).find(|&k| view.contains(k, u, v)).and_then(|k| self.instances.get(k)).map_or(0, |i| i.id)
+        (0..self.instances.len())
+            .find(|&k| view.contains(k, u, v))
+            .and_then(|k| self.instances.get(k))
+            .map_or(0, |i| i.id)
     }
 }
 
@@ -141,7 +149,13 @@ struct JsonMasks {
 }
 
 /// Reads the masks of frame `stem` from `dir` for a `width × height` frame; `Ok(None)` when it has none.
-pub fn read_frame_masks(dir: &Path, stem: &str, width: u16, height: u16, labels: &mut LabelTable) -> Result<Option<FrameMasks>> {
+pub fn read_frame_masks(
+    dir: &Path,
+    stem: &str,
+    width: u16,
+    height: u16,
+    labels: &mut LabelTable,
+) -> Result<Option<FrameMasks>> {
     let png = dir.join(format!("{stem}.png"));
     let txt = dir.join(format!("{stem}.txt"));
     let masks = if png.is_file() {
@@ -152,15 +166,17 @@ pub fn read_frame_masks(dir: &Path, stem: &str, width: u16, height: u16, labels:
     } else {
         return Ok(None);
     };
-    masks.view().validate(width, height).map_err(|e| {
-        anyhow!("{}: {e}", if png.is_file() { png.display() } else { txt.display() })
-    })?;
+    masks
+        .view()
+        .validate(width, height)
+        .map_err(|e| anyhow!("{}: {e}", if png.is_file() { png.display() } else { txt.display() }))?;
     Ok(Some(masks))
 }
 
 fn read_id_masks(png: &Path, json: &Path, width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
     let bytes = fs::read(png).with_context(|| format!("{}: cannot open", png.display()))?;
-    let text = fs::read_to_string(json).with_context(|| format!("{}: cannot read (needed beside {})", json.display(), png.display()))?;
+    let text = fs::read_to_string(json)
+        .with_context(|| format!("{}: cannot read (needed beside {})", json.display(), png.display()))?;
     parse_id_masks(&bytes, &png.display().to_string(), &text, &json.display().to_string(), width, height, labels)
 }
 
@@ -202,7 +218,8 @@ pub fn parse_id_masks(
             bbox: [clamp(x0, width), clamp(y0, height), clamp(x1, width), clamp(y1, height)],
         });
     }
-    let mut missing: Vec<u16> = ids.iter().copied().filter(|&id| id != 0 && !instances.iter().any(|i| i.id == id)).collect();
+    let mut missing: Vec<u16> =
+        ids.iter().copied().filter(|&id| id != 0 && !instances.iter().any(|i| i.id == id)).collect();
     missing.sort_unstable();
     missing.dedup();
     if let Some(id) = missing.first() {
@@ -223,13 +240,26 @@ fn read_names(dir: &Path) -> Result<Vec<String>> {
 }
 
 /// Reads YOLO segmentation text into bit planes.
-pub fn read_yolo(path: &Path, names: &[String], width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
+pub fn read_yolo(
+    path: &Path,
+    names: &[String],
+    width: u16,
+    height: u16,
+    labels: &mut LabelTable,
+) -> Result<FrameMasks> {
     let text = fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
     parse_yolo(&text, &path.display().to_string(), names, width, height, labels)
 }
 
 /// Parses YOLO segmentation text (`name` labels its errors) into bit planes.
-pub fn parse_yolo(text: &str, name: &str, names: &[String], width: u16, height: u16, labels: &mut LabelTable) -> Result<FrameMasks> {
+pub fn parse_yolo(
+    text: &str,
+    name: &str,
+    names: &[String],
+    width: u16,
+    height: u16,
+    labels: &mut LabelTable,
+) -> Result<FrameMasks> {
     let plane = MaskSet::plane_bytes(width, height);
     let mut bits = Vec::new();
     let mut instances = Vec::new();
@@ -263,7 +293,12 @@ pub fn parse_yolo(text: &str, name: &str, names: &[String], width: u16, height: 
         let bbox = rasterise(&poly, width, height, &mut mask);
         let Some(bbox) = bbox else { continue }; // a polygon covering no pixel centre
         let label = names.get(class).cloned().unwrap_or_else(|| format!("class{class}"));
-        instances.push(Instance { id: instances.len() as u16 + 1, class: labels.class_of(&label), score: score as f32, bbox });
+        instances.push(Instance {
+            id: instances.len() as u16 + 1,
+            class: labels.class_of(&label),
+            score: score as f32,
+            bbox,
+        });
         bits.extend_from_slice(&mask);
     }
     Ok(FrameMasks { width, height, instances, pixels: Pixels::Bits(bits) })

@@ -471,7 +471,16 @@ mod tests {
     use super::*;
 
     fn camera() -> View {
-        View { origin: [0.0; 3], rotation: linalg::IDENTITY, fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 }
+        View {
+            origin: [0.0; 3],
+            rotation: linalg::IDENTITY,
+            fx: 500.0,
+            fy: 500.0,
+            cx: 320.0,
+            cy: 240.0,
+            width: 640,
+            height: 480,
+        }
     }
 
     #[test]
@@ -504,7 +513,8 @@ mod tests {
         let rotation = linalg::from_columns([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]);
         let mut bits = vec![0xFFu8];
         bits[0] &= !(1 << 1);
-        let floor = Shape::Cells { centroid: [0.0, 1.0, 0.0], rotation, g_p: 0.1, origin: (-2, 10), size: (4, 2), bits };
+        let floor =
+            Shape::Cells { centroid: [0.0, 1.0, 0.0], rotation, g_p: 0.1, origin: (-2, 10), size: (4, 2), bits };
         // Cell (0, 0) spans x ∈ [−0.2, −0.1], z ∈ [1.0, 1.1]: the ray to (−0.15, 1, 1.05) hits it at depth 1.05.
         let (t, n) = floor.hit([0.0; 3], [-0.15 / 1.05, 1.0 / 1.05, 1.0], NEAR).unwrap();
         assert!((t - 1.05).abs() < 1e-4 && n[1] < -0.999);
@@ -514,7 +524,8 @@ mod tests {
 
     #[test]
     fn the_image_shows_the_nearer_shape_shaded_and_other_views_see_the_far_side() {
-        let near = Superquadric { scales: [0.1; 3], eps: [1.0, 1.0], centre: [0.0, 0.0, 1.0], rotation: linalg::IDENTITY };
+        let near =
+            Superquadric { scales: [0.1; 3], eps: [1.0, 1.0], centre: [0.0, 0.0, 1.0], rotation: linalg::IDENTITY };
         let far = Superquadric { centre: [0.0, 0.0, 1.5], scales: [0.3; 3], ..near };
         let items = [
             Drawable { shape: Shape::Sq(near), kind: Kind::Sq, colour: [200, 0, 0] },

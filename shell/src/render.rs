@@ -65,7 +65,12 @@ fn fill_gaps(labels: &mut [(u16, u16)], frame: &Frame<'_>, lo: u16, hi: u16, w: 
                 continue;
             }
             let (x, y) = (i % w, i / w);
-            let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
+            let neighbours = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < w).then(|| i + 1),
+                (y > 0).then(|| i - w),
+                (y + 1 < h).then(|| i + w),
+            ];
             if let Some(&l) = neighbours.into_iter().flatten().filter_map(|j| before.get(j)).find(|l| l.0 != u16::MAX) {
                 *label = l;
             }
@@ -168,7 +173,8 @@ fn legend(img: &mut RgbImage, x: u32, y: u32, title: &str) {
     let white = [255, 255, 255];
     label(img, x + 6, y + 6, title, white);
     let mut cx = x + 6 + 6 * title.len() as u32 + 6;
-    for (name, colour) in [("PLANE", PLANE_COLOUR), ("SQ", SQ_COLOUR), ("GMM", GMM_COLOUR), ("TINT = INSTANCE", white)] {
+    for (name, colour) in [("PLANE", PLANE_COLOUR), ("SQ", SQ_COLOUR), ("GMM", GMM_COLOUR), ("TINT = INSTANCE", white)]
+    {
         if name.starts_with("TINT") {
             label(img, cx, y + 6, name, white);
             break;

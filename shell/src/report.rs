@@ -190,7 +190,17 @@ pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
             let total = cell(p.total);
             let bold = best_total(d).is_some_and(|(b, _)| b == v);
             let total = if bold { format!("**{total}**") } else { total };
-            let _ = writeln!(s, "| {} | {} | {} | {} | {} | {} | {} |", method_name(v), d.name, cell(p.plane), cell(sq), cell(p.gmm), cell(q), total);
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                method_name(v),
+                d.name,
+                cell(p.plane),
+                cell(sq),
+                cell(p.gmm),
+                cell(q),
+                total
+            );
         }
     }
     let _ = writeln!(s);
@@ -223,7 +233,8 @@ pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
         );
     }
     let _ = writeln!(s, "\n## Table II — ablation\n");
-    let _ = writeln!(s, "| Method | Dataset | R_c | T (ms) | A_s | N_adh | J_sq (°) |\n|---|---|---:|---:|---:|---:|---:|");
+    let _ =
+        writeln!(s, "| Method | Dataset | R_c | T (ms) | A_s | N_adh | J_sq (°) |\n|---|---|---:|---:|---:|---:|---:|");
     for v in ABLATION {
         for d in datasets {
             let Some(x) = d.summary(v) else { continue };

@@ -376,7 +376,12 @@ pub fn map_frame_with_fault(
             let (w, h) = (dataset.source_size.0 as usize, dataset.source_size.1 as usize);
             let fits = (1..=crate::dataset::MAX_DOWNSCALE).find(|&n| (w / n as usize) * (h / n as usize) <= max_pixels);
             match fits {
-                Some(n) if n > dataset.downscale => anyhow!("{}: {e}; pass --downscale {n} to map it at {}x{}", fref.depth.display(), w / n as usize, h / n as usize),
+                Some(n) if n > dataset.downscale => anyhow!(
+                    "{}: {e}; pass --downscale {n} to map it at {}x{}",
+                    fref.depth.display(),
+                    w / n as usize,
+                    h / n as usize
+                ),
                 _ => anyhow!("{}: {e} ({pixels} pixels)", fref.depth.display()),
             }
         }
@@ -387,8 +392,13 @@ pub fn map_frame_with_fault(
             let masks = match dir {
                 Some(d) => {
                     let (w, h) = dataset.source_size;
-                    read_frame_masks(d, mask_stem, w, h, labels)?
-                        .map(|m| if dataset.downscale > 1 { m.subsampled(dataset.downscale, loaded.width, loaded.height) } else { m })
+                    read_frame_masks(d, mask_stem, w, h, labels)?.map(|m| {
+                        if dataset.downscale > 1 {
+                            m.subsampled(dataset.downscale, loaded.width, loaded.height)
+                        } else {
+                            m
+                        }
+                    })
                 }
                 None => None,
             };
@@ -400,9 +410,11 @@ pub fn map_frame_with_fault(
         MaskSource::Segmenter => {
             let class = labels.class_of("object");
             seg.ids.resize(frame.pixels(), 0);
-            seg.instances.resize(SEGMENTER_INSTANCES, m2smap_core::Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] });
+            seg.instances
+                .resize(SEGMENTER_INSTANCES, m2smap_core::Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] });
             let start = Instant::now();
-            let (report, k) = mapper.process_segmented(frame, &mut seg.ids, &mut seg.instances, class).map_err(error)?;
+            let (report, k) =
+                mapper.process_segmented(frame, &mut seg.ids, &mut seg.instances, class).map_err(error)?;
             let ms = start.elapsed().as_secs_f64() * 1e3;
             let masks = FrameMasks {
                 width: loaded.width,
@@ -450,7 +462,10 @@ pub fn pool_records(report: &FrameReport) -> BTreeMap<String, PoolRecord> {
         .iter()
         .zip(report.pools.iter())
         .map(|(id, u)| {
-            (id.name().to_owned(), PoolRecord { peak: u.peak, capacity: u.capacity, overflow_events: u.overflow_events as u64 })
+            (
+                id.name().to_owned(),
+                PoolRecord { peak: u.peak, capacity: u.capacity, overflow_events: u.overflow_events as u64 },
+            )
         })
         .collect()
 }
@@ -465,7 +480,9 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
         return Err(anyhow!("--frames 0: nothing to map (give at least 1)"));
     }
     // A camera preset that contradicts the TUM sequence named by the folder is most likely a mistake.
-    if let (Some(given), Some(named)) = (opts.camera.as_deref().and_then(crate::dataset::preset_key), crate::dataset::preset_in_name(&opts.dataset)) {
+    if let (Some(given), Some(named)) =
+        (opts.camera.as_deref().and_then(crate::dataset::preset_key), crate::dataset::preset_in_name(&opts.dataset))
+    {
         if given != named {
             eprintln!("warning: --camera {given} on {}, whose name says {named}", opts.dataset.display());
         }
@@ -491,11 +508,17 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
         dataset.camera_source, c.fx, c.fy, c.cx, c.cy, c.width, c.height, c.depth_scale
     );
     let path = opts.out.join("summary.json");
-    fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n").with_context(|| format!("{}: cannot write", path.display()))?;
+    fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
+        .with_context(|| format!("{}: cannot write", path.display()))?;
     Ok(summary)
 }
 
-fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOptions, storage: &mut P) -> Result<Vec<FrameRecord>> {
+fn replay<P: Profile + Zeroable>(
+    dataset: &Dataset,
+    params: Params,
+    opts: &RunOptions,
+    storage: &mut P,
+) -> Result<Vec<FrameRecord>> {
     let mut mapper = Mapper::new(storage, params).map_err(|e| anyhow!("parameters: {e}"))?;
     let masks_dir = mask_dir(&dataset.root, opts.masks.as_deref());
     if let Some(d) = masks_dir.as_ref().filter(|d| !d.is_dir()) {
@@ -542,117 +565,137 @@ fn replay<P: Profile + Zeroable>(dataset: &Dataset, params: Params, opts: &RunOp
         }
         let repeats = if fault == Some(Fault::RepeatedTimestamp) { 2 } else { 1 };
         for _ in 0..repeats {
-        let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
-        let gt = if gt_path.is_file() {
-            let ids = read_depth(&gt_path)?.2;
-            Some(dataset.subsample(&ids, 1).ok_or_else(|| anyhow!("{}: not the size of the frames", gt_path.display()))?)
-        } else {
-            None
-        };
-        let source = if segmenter { MaskSource::Segmenter } else { MaskSource::Files(masks_dir.as_deref()) };
-        let seed = opts.faults.map_or(0, |(s, _)| s);
-        let mapped = map_frame_with_fault(&mut mapper, dataset, index, source, &mut labels, &mut seg, fault.map(|f| (f, seed)));
-        let Mapped { loaded, masks, report, ms } = match mapped {
-            Ok(m) => m,
-            Err(e) if opts.faults.is_some() => {
-                // A rejected frame leaves the map and the tracks as they were; the run goes on.
-                let record = FrameRecord { index, stem: fref.stem.clone(), fault, rejected: Some(format!("{e:#}")), ..FrameRecord::default() };
-                serde_json::to_writer(&mut jsonl, &record)?;
-                jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
-                records.push(record);
-                continue;
-            }
-            Err(e) => return Err(e),
-        };
-        let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
-        let payload = mapper.encode_map(&mut wire_buf).map_err(|e| anyhow!("{}: encoding the map: {e}", fref.depth.display()))?;
-        let checked = mapper.check(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{e}"))?;
-        let w = loaded.width as usize;
-        let semantic = eval::semantic_metrics(&mapper, &checked, |u, v| match (&gt, &masks) {
-            (Some(gt), _) => gt.get(v as usize * w + u as usize).copied().unwrap_or(0),
-            (None, Some(m)) => m.id_at(u, v),
-            (None, None) => 0,
-        });
-        let reconstruction = eval::reconstruction_metrics(&mapper, &checked);
-        let start = Instant::now();
-        let map = eval::map_samples(&mapper);
-        let obs = eval::Observation { frame, params: mapper.params(), gt: gt.as_deref() };
-        let free = eval::free_space(&map, &obs);
-        let behind = eval::behind_support(&map, &obs);
-        let adhesion = eval::adhesion_cases(&map, &obs);
-        let truth = surfaces.as_deref().zip(fref.pose).map(|(s, pose)| eval::true_surface_metrics(&map, &pose, s));
-        let map_metrics_ms = start.elapsed().as_secs_f64() * 1e3;
-        let penetrations = truth.as_ref().map(|t| t.penetrations(false)).unwrap_or_default();
-        let penetrations_sq = truth.as_ref().map(|t| t.penetrations(true)).unwrap_or_default();
-        let (penetration, penetration_sq) = (p95_and_max(&penetrations), p95_and_max(&penetrations_sq));
-        let has_sq = behind.as_ref().filter(|b| !b.fractions.is_empty());
-        let gmm = report.gmms as f64;
-        let sq = params.variant.superquadrics().then_some(report.sqs as f64);
-        let record = FrameRecord {
-            index,
-            stem: fref.stem.clone(),
-            ms,
-            points: report.points,
-            voxels: report.voxels,
-            supervoxels: report.supervoxels,
-            gaussians: report.gaussians,
-            instances: masks.as_ref().map_or(0, |m| m.instances.len()),
-            segmenter: segmenter.then_some("geometric"),
-            fault,
-            rejected: None,
-            max_track_step_m: report.max_track_step_m as f64,
-            annotated: report.annotated,
-            clusters: report.clusters,
-            objects: report.objects,
-            plane_gaussians: report.plane_gaussians,
-            object_gaussians: report.object_gaussians,
-            residual_gaussians: report.residual_gaussians,
-            outlier_points: report.outlier_points,
-            dropped_points: report.dropped_points,
-            primitives: Primitives {
-                plane: Some(report.planes as f64),
-                sq: Some(sq.unwrap_or(0.0)),
-                gmm: Some(gmm),
-                total: Some(report.planes as f64 + sq.unwrap_or(0.0) + gmm),
-            },
-            sq_rejected: report.sq_rejected,
-            sq_skipped: report.sq_skipped,
-            sq_held: report.sq_held,
-            tracks: report.tracks,
-            new_tracks: report.new_tracks,
-            sq_jump_sum_deg: report.sq_jump_sum_deg as f64,
-            sq_jumps: report.sq_jumps,
-            payload_bytes: Some(payload as f64),
-            g2r_rmse_m: reconstruction.map(|r| r.g2r_rmse_m),
-            g2r_unoccluded_rmse_m: reconstruction.map(|r| r.g2r_unoccluded_rmse_m),
-            r2g_rmse_m: reconstruction.map(|r| r.r2g_rmse_m),
-            r_c: Some(report.r_c as f64),
-            a_s: semantic.a_s,
-            n_adh: Some(semantic.n_adh as f64),
-            j_sq_deg: (report.sq_jumps > 0).then(|| report.sq_jump_sum_deg as f64 / report.sq_jumps as f64),
-            free_space_violation: free.fraction(),
-            free_space_violation_sq: free.fraction_sq(),
-            sq_behind_support: behind.as_ref().map(|b| b.sqs as f64),
-            sq_behind_support_max_fraction: has_sq.and_then(|b| b.max_fraction()),
-            sq_behind_support_max_m: has_sq.map(|b| b.max_depth_m),
-            adhesion_map: adhesion.map(|a| a.0 as f64),
-            adhesion_map_sq: adhesion.map(|a| a.1 as f64),
-            g2r_true_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_rmse_m),
-            g2r_true_sq_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_sq_rmse_m),
-            penetration_p95_m: penetration.0,
-            penetration_max_m: penetration.1,
-            penetration_sq_p95_m: penetration_sq.0,
-            penetration_sq_max_m: penetration_sq.1,
-            map_metrics_ms,
-            penetrations,
-            penetrations_sq,
-            pools: pool_records(&report),
-            overflow_events: report.overflow_events as u64,
-        };
-        serde_json::to_writer(&mut jsonl, &record)?;
-        jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
-        bar.set_message(format!("{} Gaussians, {} planes, {:.1} ms", report.gaussians, report.planes, ms));
-        records.push(record);
+            let gt_path = dataset.root.join("gt").join(format!("{}.png", fref.stem));
+            let gt = if gt_path.is_file() {
+                let ids = read_depth(&gt_path)?.2;
+                Some(
+                    dataset
+                        .subsample(&ids, 1)
+                        .ok_or_else(|| anyhow!("{}: not the size of the frames", gt_path.display()))?,
+                )
+            } else {
+                None
+            };
+            let source = if segmenter { MaskSource::Segmenter } else { MaskSource::Files(masks_dir.as_deref()) };
+            let seed = opts.faults.map_or(0, |(s, _)| s);
+            let mapped = map_frame_with_fault(
+                &mut mapper,
+                dataset,
+                index,
+                source,
+                &mut labels,
+                &mut seg,
+                fault.map(|f| (f, seed)),
+            );
+            let Mapped { loaded, masks, report, ms } = match mapped {
+                Ok(m) => m,
+                Err(e) if opts.faults.is_some() => {
+                    // A rejected frame leaves the map and the tracks as they were; the run goes on.
+                    let record = FrameRecord {
+                        index,
+                        stem: fref.stem.clone(),
+                        fault,
+                        rejected: Some(format!("{e:#}")),
+                        ..FrameRecord::default()
+                    };
+                    serde_json::to_writer(&mut jsonl, &record)?;
+                    jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
+                    records.push(record);
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            let frame = loaded.view_posed(&dataset.camera, fref.pose.as_ref());
+            let payload = mapper
+                .encode_map(&mut wire_buf)
+                .map_err(|e| anyhow!("{}: encoding the map: {e}", fref.depth.display()))?;
+            let checked = mapper.check(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{e}"))?;
+            let w = loaded.width as usize;
+            let semantic = eval::semantic_metrics(&mapper, &checked, |u, v| match (&gt, &masks) {
+                (Some(gt), _) => gt.get(v as usize * w + u as usize).copied().unwrap_or(0),
+                (None, Some(m)) => m.id_at(u, v),
+                (None, None) => 0,
+            });
+            let reconstruction = eval::reconstruction_metrics(&mapper, &checked);
+            let start = Instant::now();
+            let map = eval::map_samples(&mapper);
+            let obs = eval::Observation { frame, params: mapper.params(), gt: gt.as_deref() };
+            let free = eval::free_space(&map, &obs);
+            let behind = eval::behind_support(&map, &obs);
+            let adhesion = eval::adhesion_cases(&map, &obs);
+            let truth = surfaces.as_deref().zip(fref.pose).map(|(s, pose)| eval::true_surface_metrics(&map, &pose, s));
+            let map_metrics_ms = start.elapsed().as_secs_f64() * 1e3;
+            let penetrations = truth.as_ref().map(|t| t.penetrations(false)).unwrap_or_default();
+            let penetrations_sq = truth.as_ref().map(|t| t.penetrations(true)).unwrap_or_default();
+            let (penetration, penetration_sq) = (p95_and_max(&penetrations), p95_and_max(&penetrations_sq));
+            let has_sq = behind.as_ref().filter(|b| !b.fractions.is_empty());
+            let gmm = report.gmms as f64;
+            let sq = params.variant.superquadrics().then_some(report.sqs as f64);
+            let record = FrameRecord {
+                index,
+                stem: fref.stem.clone(),
+                ms,
+                points: report.points,
+                voxels: report.voxels,
+                supervoxels: report.supervoxels,
+                gaussians: report.gaussians,
+                instances: masks.as_ref().map_or(0, |m| m.instances.len()),
+                segmenter: segmenter.then_some("geometric"),
+                fault,
+                rejected: None,
+                max_track_step_m: report.max_track_step_m as f64,
+                annotated: report.annotated,
+                clusters: report.clusters,
+                objects: report.objects,
+                plane_gaussians: report.plane_gaussians,
+                object_gaussians: report.object_gaussians,
+                residual_gaussians: report.residual_gaussians,
+                outlier_points: report.outlier_points,
+                dropped_points: report.dropped_points,
+                primitives: Primitives {
+                    plane: Some(report.planes as f64),
+                    sq: Some(sq.unwrap_or(0.0)),
+                    gmm: Some(gmm),
+                    total: Some(report.planes as f64 + sq.unwrap_or(0.0) + gmm),
+                },
+                sq_rejected: report.sq_rejected,
+                sq_skipped: report.sq_skipped,
+                sq_held: report.sq_held,
+                tracks: report.tracks,
+                new_tracks: report.new_tracks,
+                sq_jump_sum_deg: report.sq_jump_sum_deg as f64,
+                sq_jumps: report.sq_jumps,
+                payload_bytes: Some(payload as f64),
+                g2r_rmse_m: reconstruction.map(|r| r.g2r_rmse_m),
+                g2r_unoccluded_rmse_m: reconstruction.map(|r| r.g2r_unoccluded_rmse_m),
+                r2g_rmse_m: reconstruction.map(|r| r.r2g_rmse_m),
+                r_c: Some(report.r_c as f64),
+                a_s: semantic.a_s,
+                n_adh: Some(semantic.n_adh as f64),
+                j_sq_deg: (report.sq_jumps > 0).then(|| report.sq_jump_sum_deg as f64 / report.sq_jumps as f64),
+                free_space_violation: free.fraction(),
+                free_space_violation_sq: free.fraction_sq(),
+                sq_behind_support: behind.as_ref().map(|b| b.sqs as f64),
+                sq_behind_support_max_fraction: has_sq.and_then(|b| b.max_fraction()),
+                sq_behind_support_max_m: has_sq.map(|b| b.max_depth_m),
+                adhesion_map: adhesion.map(|a| a.0 as f64),
+                adhesion_map_sq: adhesion.map(|a| a.1 as f64),
+                g2r_true_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_rmse_m),
+                g2r_true_sq_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_sq_rmse_m),
+                penetration_p95_m: penetration.0,
+                penetration_max_m: penetration.1,
+                penetration_sq_p95_m: penetration_sq.0,
+                penetration_sq_max_m: penetration_sq.1,
+                map_metrics_ms,
+                penetrations,
+                penetrations_sq,
+                pools: pool_records(&report),
+                overflow_events: report.overflow_events as u64,
+            };
+            serde_json::to_writer(&mut jsonl, &record)?;
+            jsonl.write_all(b"\n").with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
+            bar.set_message(format!("{} Gaussians, {} planes, {:.1} ms", report.gaussians, report.planes, ms));
+            records.push(record);
         }
         bar.inc(1);
     }
@@ -715,7 +758,9 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
         gaussians: mean(records.iter().map(|r| r.gaussians as f64)),
         clusters: mean(records.iter().map(|r| r.clusters as f64)),
         objects: mean(records.iter().map(|r| r.objects as f64)),
-        frames_with_plane: mean(records.iter().map(|r| if r.primitives.plane.unwrap_or(0.0) > 0.0 { 1.0 } else { 0.0 })),
+        frames_with_plane: mean(
+            records.iter().map(|r| if r.primitives.plane.unwrap_or(0.0) > 0.0 { 1.0 } else { 0.0 }),
+        ),
         frames_with_sq: mean(records.iter().map(|r| if r.primitives.sq.unwrap_or(0.0) > 0.0 { 1.0 } else { 0.0 })),
         tracks_started: records.iter().map(|r| r.new_tracks as u64).sum(),
         primitives: Primitives {

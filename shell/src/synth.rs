@@ -155,7 +155,10 @@ impl Shape {
             Shape::Cylinder { centre, axis, radius, half_height } => {
                 let f = frame_of(axis);
                 let rel = sub(origin, centre);
-                let (o, d) = ([dot(f[0], rel), dot(f[1], rel), dot(f[2], rel)], [dot(f[0], dir), dot(f[1], dir), dot(f[2], dir)]);
+                let (o, d) = (
+                    [dot(f[0], rel), dot(f[1], rel), dot(f[2], rel)],
+                    [dot(f[0], dir), dot(f[1], dir), dot(f[2], dir)],
+                );
                 let mut best: Option<(f64, [f64; 3])> = None;
                 // Lateral surface: the entering root of (ox + t·dx)² + (oy + t·dy)² = r².
                 let a = d[0] * d[0] + d[1] * d[1];
@@ -214,7 +217,8 @@ impl Shape {
                 }
                 let len = dot(d, d).sqrt();
                 let smallest = scales[0].min(scales[1]).min(scales[2]);
-                let steps = (((t_far - t0) * len * SQ_STEPS_PER_AXIS / smallest).ceil() as usize).clamp(1, SQ_MAX_STEPS);
+                let steps =
+                    (((t_far - t0) * len * SQ_STEPS_PER_AXIS / smallest).ceil() as usize).clamp(1, SQ_MAX_STEPS);
                 let step = (t_far - t0) / steps as f64;
                 let mut lo = t0;
                 for j in 1..=steps {
@@ -383,7 +387,15 @@ fn plane(name: &str, normal: [f64; 3], offset: f64, colour: [u8; 3]) -> Surface 
     Surface { name: name.into(), instance: 0, label: String::new(), shape: Shape::Plane { normal, offset }, colour }
 }
 
-fn cuboid(name: &str, instance: u16, label: &str, centre: [f64; 3], half: [f64; 3], yaw: f64, colour: [u8; 3]) -> Surface {
+fn cuboid(
+    name: &str,
+    instance: u16,
+    label: &str,
+    centre: [f64; 3],
+    half: [f64; 3],
+    yaw: f64,
+    colour: [u8; 3],
+) -> Surface {
     Surface { name: name.into(), instance, label: label.into(), shape: Shape::Box { centre, half, yaw }, colour }
 }
 
@@ -398,7 +410,15 @@ fn table(x: f64, y: f64, half: [f64; 2], top: f64, colour: [u8; 3]) -> Vec<Surfa
 
 /// [`table`] with all five parts (top and legs) carrying `instance` and `label`: one non-convex instance when
 /// `instance` ≥ 1. The legs (5 cm square, inset 2.5 cm) reach from the floor to the underside of the top.
-fn table_instance(x: f64, y: f64, half: [f64; 2], top: f64, instance: u16, label: &str, colour: [u8; 3]) -> Vec<Surface> {
+fn table_instance(
+    x: f64,
+    y: f64,
+    half: [f64; 2],
+    top: f64,
+    instance: u16,
+    label: &str,
+    colour: [u8; 3],
+) -> Vec<Surface> {
     let mut v = vec![cuboid("table_top", instance, label, [x, y, top - 0.02], [half[0], half[1], 0.02], 0.0, colour)];
     for (k, (sx, sy)) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)].into_iter().enumerate() {
         let c = [x + sx * (half[0] - 0.05), y + sy * (half[1] - 0.05), 0.5 * (top - 0.04)];
@@ -460,13 +480,52 @@ impl Scene {
                 v.extend(table(0.0, 0.8, [0.55, 0.4], top, [170, 130, 90]));
                 let (mug_x, mug_r) = (-0.3, 0.045);
                 v.extend([
-                    object("mug", 1, "cup", Shape::Cylinder { centre: [mug_x, 0.72, top + 0.06], axis: [0.0, 0.0, 1.0], radius: mug_r, half_height: 0.06 }, [230, 230, 225]),
+                    object(
+                        "mug",
+                        1,
+                        "cup",
+                        Shape::Cylinder {
+                            centre: [mug_x, 0.72, top + 0.06],
+                            axis: [0.0, 0.0, 1.0],
+                            radius: mug_r,
+                            half_height: 0.06,
+                        },
+                        [230, 230, 225],
+                    ),
                     // Touches the mug's side (centre distance = r_mug + r_ball) and the table top.
-                    object("ball", 2, "sports ball", Shape::Sphere { centre: [mug_x + mug_r + 0.07, 0.72, top + 0.07], radius: 0.07 }, [220, 120, 30]),
+                    object(
+                        "ball",
+                        2,
+                        "sports ball",
+                        Shape::Sphere { centre: [mug_x + mug_r + 0.07, 0.72, top + 0.07], radius: 0.07 },
+                        [220, 120, 30],
+                    ),
                     // Its back (y = 0.95) touches the cereal box's front face (y = 0.95).
-                    object("cushion", 3, "pillow", Shape::Superquadric { centre: [0.2, 0.85, top + 0.06], scales: [0.14, 0.1, 0.06], eps: [0.3, 0.3], yaw: 0.0 }, [90, 140, 200]),
+                    object(
+                        "cushion",
+                        3,
+                        "pillow",
+                        Shape::Superquadric {
+                            centre: [0.2, 0.85, top + 0.06],
+                            scales: [0.14, 0.1, 0.06],
+                            eps: [0.3, 0.3],
+                            yaw: 0.0,
+                        },
+                        [90, 140, 200],
+                    ),
                     cuboid("cereal", 4, "box", [0.22, 0.99, top + 0.15], [0.1, 0.04, 0.15], 0.0, [200, 180, 40]),
-                    object("bottle", 5, "bottle", Shape::Cylinder { centre: [-0.05, 0.55, top + 0.04], axis: normalize([0.94, 0.34, 0.0]), radius: 0.04, half_height: 0.1 }, [40, 150, 90]),
+                    object(
+                        "bottle",
+                        5,
+                        "bottle",
+                        Shape::Cylinder {
+                            centre: [-0.05, 0.55, top + 0.04],
+                            axis: normalize([0.94, 0.34, 0.0]),
+                            radius: 0.04,
+                            half_height: 0.1,
+                        },
+                        [40, 150, 90],
+                    ),
                 ]);
                 (v, [0.1, -0.45, 1.25], [0.0, 0.8, 0.55])
             }
@@ -481,10 +540,46 @@ impl Scene {
                     plane("floor", [0.0, 0.0, 1.0], 0.0, [140, 140, 150]),
                     plane("wall", [0.0, -1.0, 0.0], -wall, [205, 200, 210]),
                     cuboid("crate", 1, "box", crate_c, crate_h, 0.0, [150, 100, 50]),
-                    object("bin", 2, "bin", Shape::Cylinder { centre: [crate_c[0] - crate_h[0] - 0.1, 1.0, 0.2], axis: [0.0, 0.0, 1.0], radius: 0.1, half_height: 0.2 }, [60, 60, 70]),
-                    object("ball", 3, "sports ball", Shape::Sphere { centre: [0.0, crate_c[1] - crate_h[1] - 0.12, 0.12], radius: 0.12 }, [230, 60, 60]),
-                    object("pouf", 4, "pouf", Shape::Superquadric { centre: [crate_c[0] + crate_h[0] + 0.12, 1.05, 0.15], scales: [0.12, 0.15, 0.15], eps: [0.6, 0.8], yaw: 0.0 }, [80, 170, 110]),
-                    cuboid("book", 5, "book", [-0.15, 1.1, 2.0 * crate_h[2] + 0.04], [0.12, 0.09, 0.04], 0.4, [40, 70, 160]),
+                    object(
+                        "bin",
+                        2,
+                        "bin",
+                        Shape::Cylinder {
+                            centre: [crate_c[0] - crate_h[0] - 0.1, 1.0, 0.2],
+                            axis: [0.0, 0.0, 1.0],
+                            radius: 0.1,
+                            half_height: 0.2,
+                        },
+                        [60, 60, 70],
+                    ),
+                    object(
+                        "ball",
+                        3,
+                        "sports ball",
+                        Shape::Sphere { centre: [0.0, crate_c[1] - crate_h[1] - 0.12, 0.12], radius: 0.12 },
+                        [230, 60, 60],
+                    ),
+                    object(
+                        "pouf",
+                        4,
+                        "pouf",
+                        Shape::Superquadric {
+                            centre: [crate_c[0] + crate_h[0] + 0.12, 1.05, 0.15],
+                            scales: [0.12, 0.15, 0.15],
+                            eps: [0.6, 0.8],
+                            yaw: 0.0,
+                        },
+                        [80, 170, 110],
+                    ),
+                    cuboid(
+                        "book",
+                        5,
+                        "book",
+                        [-0.15, 1.1, 2.0 * crate_h[2] + 0.04],
+                        [0.12, 0.09, 0.04],
+                        0.4,
+                        [40, 70, 160],
+                    ),
                 ];
                 (v, [-0.05, -0.25, 1.2], [-0.05, 0.95, 0.2])
             }
@@ -503,10 +598,37 @@ impl Scene {
                 let (stack_c, stack_h) = ([0.27, 0.82], [0.12, 0.09, 0.04]);
                 v.extend([
                     cuboid("box", 2, "box", [-0.3, 0.88, top + 0.11], [0.08, 0.05, 0.11], 0.5, [200, 60, 50]),
-                    object("can", 3, "can", Shape::Cylinder { centre: [-0.08, 0.6, top + 0.06], axis: [0.0, 0.0, 1.0], radius: 0.035, half_height: 0.06 }, [200, 200, 210]),
+                    object(
+                        "can",
+                        3,
+                        "can",
+                        Shape::Cylinder {
+                            centre: [-0.08, 0.6, top + 0.06],
+                            axis: [0.0, 0.0, 1.0],
+                            radius: 0.035,
+                            half_height: 0.06,
+                        },
+                        [200, 200, 210],
+                    ),
                     // The wide box of the stack, and a smaller one resting on it (touching at z = top + 0.08).
-                    cuboid("stack_low", 4, "book", [stack_c[0], stack_c[1], top + stack_h[2]], stack_h, -0.15, [50, 90, 190]),
-                    cuboid("stack_high", 5, "box", [stack_c[0] + 0.01, stack_c[1] - 0.01, top + 2.0 * stack_h[2] + 0.04], [0.06, 0.05, 0.04], 0.35, [230, 190, 40]),
+                    cuboid(
+                        "stack_low",
+                        4,
+                        "book",
+                        [stack_c[0], stack_c[1], top + stack_h[2]],
+                        stack_h,
+                        -0.15,
+                        [50, 90, 190],
+                    ),
+                    cuboid(
+                        "stack_high",
+                        5,
+                        "box",
+                        [stack_c[0] + 0.01, stack_c[1] - 0.01, top + 2.0 * stack_h[2] + 0.04],
+                        [0.06, 0.05, 0.04],
+                        0.35,
+                        [230, 190, 40],
+                    ),
                     // On the floor, right of the table (clear of its legs and top).
                     cuboid("crate", 6, "box", [0.82, 0.72, 0.13], [0.12, 0.1, 0.13], 0.3, [70, 150, 80]),
                 ]);
@@ -581,7 +703,12 @@ impl Scene {
         let rot = tr.pose.rotation();
         let (w, h) = (cam.width as usize, cam.height as usize);
         let mut frame = SynthFrame {
-            frame: LoadedFrame { width: cam.width, height: cam.height, depth: vec![0; w * h], colour: vec![0; w * h * 3] },
+            frame: LoadedFrame {
+                width: cam.width,
+                height: cam.height,
+                depth: vec![0; w * h],
+                colour: vec![0; w * h * 3],
+            },
             surface: vec![0; w * h],
             pose: tr.pose,
         };
@@ -642,7 +769,12 @@ impl Scene {
             let (u, v) = ((i % w) as u16, (i / w) as u16);
             match instances.iter_mut().find(|x| x.id == id) {
                 Some(x) => x.bbox = [x.bbox[0].min(u), x.bbox[1].min(v), x.bbox[2].max(u), x.bbox[3].max(v)],
-                None => instances.push(Instance { id, class: labels.class_of(self.label_of(id)), score: score(id), bbox: [u, v, u, v] }),
+                None => instances.push(Instance {
+                    id,
+                    class: labels.class_of(self.label_of(id)),
+                    score: score(id),
+                    bbox: [u, v, u, v],
+                }),
             }
         }
         instances.sort_by_key(|x| x.id);
@@ -657,7 +789,14 @@ impl Scene {
 
     /// Instance masks of frame `k` degraded like a real detector (see [`Degradation`]; the default gives
     /// [`Scene::perfect_masks`]). Random choices are hashed from `seed`, `k` and the instance id.
-    pub fn degraded_masks(&self, frame: &SynthFrame, k: usize, seed: u32, d: &Degradation, labels: &mut LabelTable) -> FrameMasks {
+    pub fn degraded_masks(
+        &self,
+        frame: &SynthFrame,
+        k: usize,
+        seed: u32,
+        d: &Degradation,
+        labels: &mut LabelTable,
+    ) -> FrameMasks {
         let (w, h) = (self.camera.width as usize, self.camera.height as usize);
         let mut ids = self.instance_image(frame);
         for _ in 0..d.erode {
@@ -690,7 +829,14 @@ impl Scene {
 
     /// [`Scene::write_tum`] with `masks/` degraded by `degradation` (seeded by `seed`); `gt/` stays exact and
     /// `gt/objects.json` records the seed, the noise switch and the degradation.
-    pub fn write_tum_degraded(&self, out: &Path, frames: usize, seed: u32, noise: bool, degradation: &Degradation) -> Result<()> {
+    pub fn write_tum_degraded(
+        &self,
+        out: &Path,
+        frames: usize,
+        seed: u32,
+        noise: bool,
+        degradation: &Degradation,
+    ) -> Result<()> {
         degradation.validate()?;
         for sub in ["rgb", "depth", "gt", "masks"] {
             fs::create_dir_all(out.join(sub)).with_context(|| format!("{}: cannot create", out.join(sub).display()))?;
@@ -705,22 +851,37 @@ impl Scene {
             let t = 1000.0 + k as f64 / 30.0;
             let stem = format!("{t:.6}");
             save(&out.join(format!("rgb/{stem}.png")), image::RgbImage::from_raw(w, h, f.frame.colour.clone()))?;
-            save(&out.join(format!("depth/{stem}.png")), image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, f.frame.depth.clone()))?;
-            save(&out.join(format!("gt/{stem}.png")), image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, self.instance_image(&f)))?;
+            save(
+                &out.join(format!("depth/{stem}.png")),
+                image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, f.frame.depth.clone()),
+            )?;
+            save(
+                &out.join(format!("gt/{stem}.png")),
+                image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, self.instance_image(&f)),
+            )?;
             let masks = self.degraded_masks(&f, k, seed, degradation, &mut LabelTable::default());
             if let Pixels::Ids(ids) = &masks.pixels {
-                save(&out.join(format!("masks/{stem}.png")), image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, ids.clone()))?;
+                save(
+                    &out.join(format!("masks/{stem}.png")),
+                    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, ids.clone()),
+                )?;
             }
             let list: Vec<serde_json::Value> = masks
                 .instances
                 .iter()
                 .map(|i| serde_json::json!({ "id": i.id, "label": self.label_of(i.id), "score": i.score, "bbox": i.bbox }))
                 .collect();
-            write(&out.join(format!("masks/{stem}.json")), &serde_json::to_string(&serde_json::json!({ "instances": list }))?)?;
+            write(
+                &out.join(format!("masks/{stem}.json")),
+                &serde_json::to_string(&serde_json::json!({ "instances": list }))?,
+            )?;
             rgb_list.push_str(&format!("{stem} rgb/{stem}.png\n"));
             depth_list.push_str(&format!("{stem} depth/{stem}.png\n"));
             let (p, q) = (f.pose.t, f.pose.q);
-            gt_list.push_str(&format!("{stem} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6}\n", p[0], p[1], p[2], q[0], q[1], q[2], q[3]));
+            gt_list.push_str(&format!(
+                "{stem} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6}\n",
+                p[0], p[1], p[2], q[0], q[1], q[2], q[3]
+            ));
         }
         write(&out.join("rgb.txt"), &rgb_list)?;
         write(&out.join("depth.txt"), &depth_list)?;

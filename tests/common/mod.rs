@@ -75,6 +75,9 @@ pub fn expect_failure(args: &[&str], needles: &[&str]) {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "expected failure for {needles:?}");
     assert_eq!(stderr.trim_end().lines().count(), 1, "one line: {stderr}");
-    assert!(stderr.starts_with("error: ") && needles.iter().all(|n| stderr.contains(n)), "{stderr:?} should name {needles:?}");
+    assert!(
+        stderr.starts_with("error: ") && needles.iter().all(|n| stderr.contains(n)),
+        "{stderr:?} should name {needles:?}"
+    );
     assert!(!stderr.contains("panicked"));
 }

@@ -56,11 +56,7 @@ fn main() -> ExitCode {
                 Ok(frame) => {
                     let line = match frame.level() {
                         None => format!("{}", frame.display_message()),
-                        Some(level) => format!(
-                            "{} {}",
-                            level.as_str().to_uppercase(),
-                            frame.display_message()
-                        ),
+                        Some(level) => format!("{} {}", level.as_str().to_uppercase(), frame.display_message()),
                     };
                     if writeln!(out, "{line}").and_then(|_| out.flush()).is_err() {
                         return ExitCode::from(1);
