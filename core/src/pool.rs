@@ -135,6 +135,14 @@ impl<'a, T: Copy> Bounded<'a, T> {
         self.overflows = 0;
     }
 
+    /// Starts a new frame's accounting and keeps the elements (for a pool that lives across frames, such as the
+    /// tracks): the peak restarts at the current length and the overflow count at 0, so a refused push is
+    /// reported in the frame it happened and not again in every later one.
+    pub fn restart_accounting(&mut self) {
+        self.peak = self.len;
+        self.overflows = 0;
+    }
+
     /// Number of elements.
     pub fn len(&self) -> usize {
         self.len

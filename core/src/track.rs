@@ -282,6 +282,8 @@ impl<'a> Tracker<'a> {
         while self.tracks.len() > keep {
             self.tracks.pop();
         }
+        // The pool lives across frames; its report is this frame's.
+        self.tracks.restart_accounting();
     }
 
     /// Equations 14–15: the nearest track of label `class` within `d_max` of `centre` that has not been
@@ -364,6 +366,27 @@ mod tests {
         tracker.forget_refusal(here, class, &params);
         tracker.begin_frame(&params);
         assert!(!tracker.skips_search(here, class, &params));
+    }
+
+    /// A full track pool refuses a new track in the frame it happens; the next frame's report starts at 0
+    /// (the pool lives across frames, its overflow count does not).
+    #[test]
+    fn track_pool_overflows_are_counted_in_their_frame_only() {
+        let params = Params::default();
+        let mut storage = [Track::zeroed(); 2];
+        let mut tracker = Tracker::new(Bounded::new(&mut storage));
+        let sq = |x: f32| Superquadric { centre: [x, 0.0, 2.0], ..Superquadric::default_shape() };
+        tracker.begin_frame(&params);
+        for k in 0..3 {
+            tracker.update(&sq(k as f32), 1, &params, true);
+        }
+        let u = tracker.tracks.usage();
+        assert_eq!((u.peak, u.overflow_events), (2, 1), "three objects, two tracks");
+        tracker.begin_frame(&params);
+        let u = tracker.tracks.usage();
+        assert_eq!((u.peak, u.overflow_events), (2, 0), "the next frame reports no refusal of its own");
+        tracker.update(&sq(0.0), 1, &params, true);
+        assert_eq!(tracker.tracks.usage().overflow_events, 0, "an existing track takes it");
     }
 
     #[test]
