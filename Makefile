@@ -25,7 +25,7 @@ demo:
 	./target/release/m2smap render $(DEMO)/tabletop --frame 5 --out $(DEMO)/tabletop-frame5.png
 	./target/release/m2smap export $(DEMO)/tabletop --frame 5 --ply $(DEMO)/tabletop-frame5.ply
 	@if [ -d $(SHARED)/tum_fr3_cabinet ]; then \
-		./target/release/m2smap render $(SHARED)/tum_fr3_cabinet --frame 10 --out $(DEMO)/cabinet-frame10.png; fi
+		./target/release/m2smap render $(SHARED)/tum_fr3_cabinet --frame 12 --out $(DEMO)/cabinet-frame12.png; fi
 	@echo "outputs: $(DEMO)/tabletop-run/summary.json and frames.jsonl, renders and a PLY in $(DEMO)"
 
 ## Every test: the no_std core for the Cortex-M7 target, the firmware under QEMU (when available), then the

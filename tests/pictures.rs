@@ -309,3 +309,40 @@ fn a_close_range_real_frame_shows_every_object_solid() {
         );
     }
 }
+
+/// `render --frame K` maps frames 0..K first (the superquadric tracks warm up as in `run`), so the picture's map
+/// is the one `run` reports for frame K.
+#[test]
+fn render_shows_the_map_run_has_at_that_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    assert!(m2smap(&["synth", "--scene", "clutter", "--frames", "4", "--out", scene.to_str().unwrap()])
+        .status
+        .success());
+    let run = dir.path().join("run");
+    assert!(m2smap(&["run", scene.to_str().unwrap(), "--out", run.to_str().unwrap()]).status.success());
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(run.join("frames.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    for k in [0usize, 3] {
+        let png = dir.path().join(format!("f{k}.png"));
+        let o = m2smap(&["render", scene.to_str().unwrap(), "--frame", &k.to_string(), "--out", png.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let p = &lines[k]["primitives"];
+        // The payload tells a warm map from a cold one (clutter frame 3: 475 against 474 bytes).
+        let expected = format!(
+            "frame {k}: {} planes, {} SQs, {} GMMs, {} bytes",
+            p["plane"].as_f64().unwrap(),
+            p["sq"].as_f64().unwrap(),
+            p["gmm"].as_f64().unwrap(),
+            lines[k]["payload_bytes"].as_f64().unwrap()
+        );
+        assert!(
+            String::from_utf8_lossy(&o.stdout).starts_with(&expected),
+            "{} vs {expected}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+    }
+}

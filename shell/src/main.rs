@@ -198,7 +198,8 @@ enum Command {
         #[arg(long, value_name = "S", default_value_t = 0.0)]
         mask_score_noise: f64,
     },
-    /// Draw the four-panel picture of frame K (masks, Gaussians, fused clusters, map) into a PNG, or with
+    /// Draw the four-panel picture of frame K (masks, Gaussians, fused clusters, map; frames 0..K warm the
+    /// superquadric tracks, as in `run`) into a PNG, or with
     /// `--view orbit|top` the frame's map from around or above its objects.
     Render {
         /// Dataset folder.
@@ -402,6 +403,10 @@ fn execute(cli: Cli) -> Result<()> {
                     (ViewChoice::Top, None) => Some(render::MapView::Top),
                     (_, Some(a)) => anyhow::bail!("--angle {a} goes with --view orbit and must be a number of degrees"),
                 };
+                // Earlier frames warm the superquadric tracks: the picture shows the map `run` has at this frame.
+                for k in 0..frame {
+                    map_frame(s.mapper, s.dataset, k, s.source, s.labels, s.seg)?;
+                }
                 let m = map_frame(s.mapper, s.dataset, frame, s.source, s.labels, s.seg)?;
                 let fv = m.loaded.view(&s.dataset.camera);
                 match map_view {
@@ -410,8 +415,10 @@ fn execute(cli: Cli) -> Result<()> {
                         render::render_views(s.mapper, &fv, v, &out)?;
                     }
                 }
+                let mut wire = vec![0u8; m2smap::run::WIRE_BUFFER_BYTES];
+                let bytes = s.mapper.encode_map(&mut wire).map_err(|e| anyhow!("encoding the map: {e}"))?;
                 println!(
-                    "frame {frame}: {} planes, {} SQs, {} GMMs -> {}",
+                    "frame {frame}: {} planes, {} SQs, {} GMMs, {bytes} bytes -> {}",
                     m.report.planes,
                     m.report.sqs,
                     m.report.gmms,

@@ -152,6 +152,20 @@ impl Shape {
         }
     }
 
+    /// Whether `from` sees the side of a plane's cells that `seen_from` saw (always for other shapes): a
+    /// plane was observed from one side only, so from behind it (a wall seen from the far side of the
+    /// room) it is left out and does not hide what stands in front of it.
+    pub fn faces_the_same_side(&self, from: Vec3, seen_from: Vec3) -> bool {
+        match self {
+            Shape::Cells { centroid, rotation, .. } => {
+                let n = linalg::column(rotation, 2);
+                let side = |p: Vec3| linalg::dot(n, linalg::sub(p, *centroid));
+                side(from) * side(seen_from) >= 0.0
+            }
+            _ => true,
+        }
+    }
+
     /// The first hit of the ray `o + t·d` with t ≥ `t_min`: (t, outward unit normal), `None` on a miss.
     pub fn hit(&self, o: Vec3, d: Vec3, t_min: f32) -> Option<(f32, Vec3)> {
         match self {
@@ -321,14 +335,18 @@ pub fn drawables(
 }
 
 /// Ray-casts `items` from `view`: the nearest hit per pixel, shaded, depth edges darkened; `background` where
-/// nothing is hit.
-pub fn render(items: &[Drawable], view: &View, background: [u8; 3]) -> Image {
+/// nothing is hit. Planes seen from the side opposite to `seen_from` (the mapped camera's position) are left out
+/// ([`Shape::faces_the_same_side`]).
+pub fn render(items: &[Drawable], view: &View, seen_from: Vec3, background: [u8; 3]) -> Image {
     let (w, h) = (view.width, view.height);
     let n = (w * h) as usize;
     let mut depth = vec![f32::INFINITY; n];
     let mut normal = vec![[0.0f32; 3]; n];
     let mut owner: Vec<Option<usize>> = vec![None; n];
     for (index, item) in items.iter().enumerate() {
+        if !item.shape.faces_the_same_side(view.origin, seen_from) {
+            continue;
+        }
         let (centre, radius) = item.shape.bounding_sphere();
         let Some((x0, y0, x1, y1)) = view.pixel_box(centre, radius) else { continue };
         for y in y0..=y1 {
@@ -523,6 +541,37 @@ mod tests {
     }
 
     #[test]
+    fn a_plane_seen_from_behind_does_not_hide_what_stands_in_front_of_it() {
+        // A wall 2 m ahead (cells 0.1 m, 40 × 40 around the centre), a ball 0.5 m in front of it.
+        let rotation = linalg::from_columns([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]);
+        let wall = Shape::Cells {
+            centroid: [0.0, 0.0, 2.0],
+            rotation,
+            g_p: 0.1,
+            origin: (-20, -20),
+            size: (40, 40),
+            bits: vec![0xFF; 200],
+        };
+        let ball =
+            Superquadric { scales: [0.2; 3], eps: [1.0, 1.0], centre: [0.0, 0.0, 1.5], rotation: linalg::IDENTITY };
+        let items = [
+            Drawable { shape: wall, kind: Kind::Plane, colour: [0, 0, 200] },
+            Drawable { shape: Shape::Sq(ball), kind: Kind::Sq, colour: [0, 200, 0] },
+        ];
+        let centre = |img: &Image| img.colour[(240 * img.width + 320) as usize];
+        // From the camera that mapped them, the ball stands before the wall.
+        let front = render(&items, &camera(), [0.0; 3], [0, 0, 0]);
+        assert!(centre(&front)[1] > 0 && centre(&front)[2] == 0);
+        // From behind (5 m ahead, looking back), the wall's unseen side is left out: the ball still shows.
+        let back = View::look_at([0.0, 0.0, 5.0], [0.0, 0.0, 1.5], [0.0, -1.0, 0.0], &camera());
+        let img = render(&items, &back, [0.0; 3], [0, 0, 0]);
+        assert!(centre(&img)[1] > 0 && centre(&img)[2] == 0, "{:?}", centre(&img));
+        // Without that rule (seen from the back as well) the wall would hide it.
+        let img = render(&items, &back, [0.0, 0.0, 5.0], [0, 0, 0]);
+        assert!(centre(&img)[2] > 0);
+    }
+
+    #[test]
     fn the_image_shows_the_nearer_shape_shaded_and_other_views_see_the_far_side() {
         let near =
             Superquadric { scales: [0.1; 3], eps: [1.0, 1.0], centre: [0.0, 0.0, 1.0], rotation: linalg::IDENTITY };
@@ -532,7 +581,7 @@ mod tests {
             Drawable { shape: Shape::Sq(far), kind: Kind::Sq, colour: [0, 200, 0] },
         ];
         let view = camera();
-        let img = render(&items, &view, [0, 0, 0]);
+        let img = render(&items, &view, [0.0; 3], [0, 0, 0]);
         let at = |img: &Image, x: u32, y: u32| img.colour[(y * img.width + x) as usize];
         assert!(at(&img, 320, 240)[0] > 100 && at(&img, 320, 240)[1] == 0, "the near sphere in front");
         assert!(at(&img, 320 + 80, 240)[1] > 50, "the far one around it");
@@ -549,12 +598,12 @@ mod tests {
         let behind = framing.view(Viewpoint::Orbit { azimuth: std::f32::consts::PI }, &view);
         let fit = reach / view.half_fov().tan() * 1.15;
         assert!((behind.origin[2] - (1.5 + fit)).abs() < 1e-3, "eye at {:?}", behind.origin);
-        let img = render(&items, &behind, [0, 0, 0]);
+        let img = render(&items, &behind, [0.0; 3], [0, 0, 0]);
         assert!(img.colour.iter().all(|c| c[0] == 0), "the near sphere is hidden from behind");
         // From above, both are seen.
         let top = framing.view(Viewpoint::Top, &view);
         assert!(top.origin[1] < -1.0, "above: {:?}", top.origin);
-        let img = render(&items, &top, [0, 0, 0]);
+        let img = render(&items, &top, [0.0; 3], [0, 0, 0]);
         assert!(img.colour.iter().any(|c| c[1] > 0));
     }
 }

@@ -131,7 +131,7 @@ pub fn render_panels(mapper: &Mapper<'_>, frame: &Frame<'_>, masks: Option<&Fram
     }
     // (d) the map, ray-cast from the camera.
     let items = map_drawables(mapper);
-    let map = raycast::render(&items, &View::camera(&frame.intrinsics, w, h), BACKGROUND);
+    let map = raycast::render(&items, &View::camera(&frame.intrinsics, w, h), [0.0; 3], BACKGROUND);
     blit(&mut img, &map, w, h);
     // Legends.
     let white = [255, 255, 255];
@@ -222,7 +222,7 @@ pub fn render_views(mapper: &Mapper<'_>, frame: &Frame<'_>, view: MapView, out: 
     let mut drawn = 0;
     for (k, (viewpoint, title)) in panels.iter().enumerate() {
         let (x0, y0) = ((k as u32 % cols) * w, (k as u32 / cols) * h);
-        let image = raycast::render(&items, &framing.view(*viewpoint, &camera), BACKGROUND);
+        let image = raycast::render(&items, &framing.view(*viewpoint, &camera), camera.origin, BACKGROUND);
         drawn += image.kind.iter().filter(|k| k.is_some()).count();
         blit(&mut img, &image, x0, y0);
         legend(&mut img, x0, y0, title);
