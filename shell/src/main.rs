@@ -23,16 +23,16 @@ struct Session<'a, 'm> {
     seg: &'a mut SegmenterBuffers,
 }
 
-/// How `render` and `export` map: the variant, parameters and camera, as `run` takes them.
+/// How `run`, `render` and `export` map: the variant, parameters, camera, capacity profile and subsampling.
 #[derive(clap::Args)]
 struct MappingArgs {
     /// Method variant: full, paper, pmsao, wsqa, mmog, mmp, mmq.
     #[arg(long)]
     variant: Option<String>,
-    /// JSON file of `Params` fields to override.
+    /// JSON file of parameter overrides (field names of `Params`).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Camera: a TUM preset (fr1, fr2, fr3) or a camera.json file (default: guessed from the folder).
+    /// Camera: a preset (fr1, fr2, fr3, 7scenes) or a camera.json file (default: from the folder).
     #[arg(long)]
     camera: Option<String>,
     /// Capacity profile of the core.
@@ -131,25 +131,11 @@ enum Command {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
-        /// Method variant: full, paper, pmsao, wsqa, mmog, mmp, mmq.
-        #[arg(long)]
-        variant: Option<String>,
         /// Process at most N frames.
         #[arg(long)]
         frames: Option<usize>,
-        /// JSON file of parameter overrides (field names of `Params`).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Camera preset (fr1, fr2, fr3, 7scenes) or a camera.json path.
-        #[arg(long)]
-        camera: Option<String>,
-        /// Capacity profile of the core.
-        #[arg(long, value_enum, default_value = "host")]
-        profile: ProfileChoice,
-        /// Subsample every frame (depth, colour, masks) by N before mapping: pixel (x, y) is pixel (N·x, N·y) and
-        /// the camera's focal lengths and principal point are divided by N (e.g. 2 for 1920×1080 sensors).
-        #[arg(long, value_name = "N", default_value_t = 1)]
-        downscale: u16,
+        #[command(flatten)]
+        how: MappingArgs,
         /// Instance-mask folder (default: DATASET/masks when it exists).
         #[arg(long, conflicts_with = "segmenter")]
         masks: Option<PathBuf>,
@@ -292,20 +278,8 @@ fn main() -> ExitCode {
 
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run {
-            dataset,
-            out,
-            variant,
-            frames,
-            config,
-            camera,
-            profile,
-            downscale,
-            masks,
-            segmenter,
-            faults,
-            fault_rate,
-        } => {
+        Command::Run { dataset, out, frames, how, masks, segmenter, faults, fault_rate } => {
+            let MappingArgs { variant, config, camera, profile, downscale } = how;
             let variant = match variant {
                 Some(name) => Some(parse_variant(&name)?),
                 None => None,
