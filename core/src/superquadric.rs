@@ -540,6 +540,21 @@ struct Problem<'a> {
     radial: bool,
 }
 
+impl<'a> Problem<'a> {
+    /// The fit of all of `points` under `evidence` with the metric distance (no screening, no extra probes yet).
+    fn new(points: &'a [Vec3], evidence: &Evidence<'a>, params: &Params) -> Self {
+        Problem {
+            points,
+            extent_points: points,
+            evidence: *evidence,
+            lateral: lateral_half_extent(points),
+            prior: params.sq_scale_prior,
+            radial: false,
+            extra: &[],
+        }
+    }
+}
+
 /// Half the larger 5–95 % extent of `points` across the line of sight through their mean, metres.
 fn lateral_half_extent(points: &[Vec3]) -> f32 {
     if points.is_empty() {
@@ -1038,15 +1053,7 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     if points.len() < SQ_PARAMS {
         return None;
     }
-    let prob = Problem {
-        points,
-        extent_points: points,
-        evidence: *evidence,
-        lateral: lateral_half_extent(points),
-        prior: params.sq_scale_prior,
-        radial: false,
-        extra: &[],
-    };
+    let prob = Problem::new(points, evidence, params);
     let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
     let (e0, e1, e2) = (linalg::column(pca, 0), linalg::column(pca, 1), linalg::column(pca, 2));
     let frames = [linalg::from_columns(e0, e1, e2), linalg::from_columns(e1, e2, e0), linalg::from_columns(e2, e0, e1)];
@@ -1119,15 +1126,7 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
     if points.len() < SQ_PARAMS {
         return None;
     }
-    let prob = Problem {
-        points,
-        extent_points: points,
-        evidence: *evidence,
-        lateral: lateral_half_extent(points),
-        prior: params.sq_scale_prior,
-        radial: false,
-        extra: &[],
-    };
+    let prob = Problem::new(points, evidence, params);
     let mut theta = [0.0; SQ_PARAMS];
     theta[..3].copy_from_slice(&start.scales);
     theta[3..5].copy_from_slice(if params.variant.ellipsoids_only() { &ELLIPSOID_EPS } else { &start.eps });
@@ -1346,15 +1345,7 @@ fn is_acceptable(fit: &Fit, prob: &Problem<'_>, params: &Params) -> bool {
 /// Whether `sq` (any superquadric, e.g. a track's smoothed state) passes the acceptance test of a fit to
 /// `points` under `evidence`: the map shows a smoothed state only when this frame's evidence allows it.
 pub fn is_consistent(sq: &Superquadric, points: &[Vec3], evidence: &Evidence<'_>, params: &Params) -> bool {
-    let prob = Problem {
-        points,
-        extent_points: points,
-        evidence: *evidence,
-        lateral: lateral_half_extent(points),
-        prior: params.sq_scale_prior,
-        radial: false,
-        extra: &[],
-    };
+    let prob = Problem::new(points, evidence, params);
     accepts(sq, sq.error(points), &prob, params)
 }
 
