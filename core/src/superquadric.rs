@@ -18,7 +18,8 @@
 //! `lm_samples` points with the first-order metric distance (G − 1)/‖∇G‖ and a forward-difference shape
 //! Jacobian, accumulated point by point into JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹),
 //! λ ÷ 3 on success and × 10 on failure, parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale
-//! ≥ 0.005 m) after each step; the first acceptable one wins. Powers go through [`fastmath::pow`].
+//! ≥ 0.005 m) after each step; the first acceptable one wins. Powers go through [`fastmath`], each logarithm
+//! taken once per point and model (`Powers` keeps them for the gradient and the perturbed models).
 //!
 //! **Size prior.** Only the camera-facing half of an object is seen, so a superquadric that extends further
 //! away from the camera explains the points just as well. LM therefore minimises Σ e² + w · Σ a_k²
@@ -73,19 +74,37 @@ pub struct Superquadric {
     pub rotation: Mat3,
 }
 
+/// log2 of q = (x/a)², capped at 10⁴ (the base of one term of F).
+#[inline]
+fn term_log2(x: f32, a: f32) -> f32 {
+    let q = (x / a) * (x / a);
+    fastmath::log2(q.min(1e4))
+}
+
+/// One term (x/a)^(2/ε) of F, from [`term_log2`].
+#[inline]
+fn term_from(log2_q: f32, eps: f32) -> f32 {
+    fastmath::pow_log2(log2_q, 1.0 / eps)
+}
+
+/// One term (x/a)^(2/ε) of F.
 #[inline]
 fn term(x: f32, a: f32, eps: f32) -> f32 {
-    let q = (x / a) * (x / a);
-    fastmath::pow(q.min(1e4), 1.0 / eps)
+    term_from(term_log2(x, a), eps)
 }
 
 /// The powers of F at one point: the terms (x/a1)^(2/ε2), (y/a2)^(2/ε2), (z/a3)^(2/ε1), the xy power
-/// S^(ε2/ε1) of S = the first two terms' sum, and G = F^(ε1/2) = √H with F = S^(ε2/ε1) + the third term.
+/// S^(ε2/ε1) of S = the first two terms' sum, and G = F^(ε1/2) = √H with F = S^(ε2/ε1) + the third term; with
+/// the base-2 logarithms of the three terms' bases, of S and of F (the shape gradient and the perturbed models
+/// of the Jacobian reuse them instead of taking them again).
 #[derive(Debug, Clone, Copy, Default)]
 struct Powers {
     t: Vec3,
     xy: f32,
     g: f32,
+    log2_q: Vec3,
+    log2_s: f32,
+    log2_f: f32,
 }
 
 /// Signed power sign(w)·|w|^e used by the parametric surface.
@@ -160,18 +179,21 @@ impl Superquadric {
         self.distance_from(l, &self.powers(l))
     }
 
-    /// The powers of F at local coordinates `l` (five `powf`).
+    /// The powers of F at local coordinates `l` (five logarithms and five exponentials).
     #[inline]
     fn powers(&self, l: Vec3) -> Powers {
         let [a1, a2, a3] = self.scales;
         let [e1, e2] = self.eps;
-        let t = [term(l[0], a1, e2), term(l[1], a2, e2), term(l[2], a3, e1)];
-        let xy = fastmath::pow(t[0] + t[1], e2 / e1);
-        Powers { t, xy, g: fastmath::pow(xy + t[2], 0.5 * e1) }
+        let log2_q = [term_log2(l[0], a1), term_log2(l[1], a2), term_log2(l[2], a3)];
+        let t = [term_from(log2_q[0], e2), term_from(log2_q[1], e2), term_from(log2_q[2], e1)];
+        let log2_s = fastmath::log2(t[0] + t[1]);
+        let xy = fastmath::pow_log2(log2_s, e2 / e1);
+        let log2_f = fastmath::log2(xy + t[2]);
+        Powers { t, xy, g: fastmath::pow_log2(log2_f, 0.5 * e1), log2_q, log2_s, log2_f }
     }
 
-    /// [`Superquadric::powers`] at `l`, reusing `base`'s powers `b` at the same `l` wherever the inputs of a
-    /// power are bit-identical (the Jacobian perturbs one shape parameter at a time).
+    /// [`Superquadric::powers`] at `l`, reusing `base`'s powers and logarithms `b` at the same `l` wherever the
+    /// inputs of one are bit-identical (the Jacobian perturbs one shape parameter at a time).
     #[inline]
     fn powers_reusing(&self, base: &Superquadric, l: Vec3, b: &Powers) -> Powers {
         let same = |x: &[f32], y: &[f32]| x.iter().map(|v| v.to_bits()).eq(y.iter().map(|v| v.to_bits()));
@@ -179,18 +201,26 @@ impl Superquadric {
         let [e1, e2] = self.eps;
         let (b1, b2, b3) = (base.scales[0], base.scales[1], base.scales[2]);
         let (be1, be2) = (base.eps[0], base.eps[1]);
-        let t = [
-            if same(&[a1, e2], &[b1, be2]) { b.t[0] } else { term(l[0], a1, e2) },
-            if same(&[a2, e2], &[b2, be2]) { b.t[1] } else { term(l[1], a2, e2) },
-            if same(&[a3, e1], &[b3, be1]) { b.t[2] } else { term(l[2], a3, e1) },
+        // A term's base depends on its half-axis only, its power on the half-axis and ε.
+        let log2_q = [
+            if a1.to_bits() == b1.to_bits() { b.log2_q[0] } else { term_log2(l[0], a1) },
+            if a2.to_bits() == b2.to_bits() { b.log2_q[1] } else { term_log2(l[1], a2) },
+            if a3.to_bits() == b3.to_bits() { b.log2_q[2] } else { term_log2(l[2], a3) },
         ];
+        let t = [
+            if same(&[a1, e2], &[b1, be2]) { b.t[0] } else { term_from(log2_q[0], e2) },
+            if same(&[a2, e2], &[b2, be2]) { b.t[1] } else { term_from(log2_q[1], e2) },
+            if same(&[a3, e1], &[b3, be1]) { b.t[2] } else { term_from(log2_q[2], e1) },
+        ];
+        let log2_s = if same(&t[..2], &b.t[..2]) { b.log2_s } else { fastmath::log2(t[0] + t[1]) };
         let xy = if same(&[t[0], t[1], e1, e2], &[b.t[0], b.t[1], be1, be2]) {
             b.xy
         } else {
-            fastmath::pow(t[0] + t[1], e2 / e1)
+            fastmath::pow_log2(log2_s, e2 / e1)
         };
-        let g = if same(&[xy, t[2], e1], &[b.xy, b.t[2], be1]) { b.g } else { fastmath::pow(xy + t[2], 0.5 * e1) };
-        Powers { t, xy, g }
+        let log2_f = if same(&[xy, t[2]], &[b.xy, b.t[2]]) { b.log2_f } else { fastmath::log2(xy + t[2]) };
+        let g = if same(&[xy, t[2], e1], &[b.xy, b.t[2], be1]) { b.g } else { fastmath::pow_log2(log2_f, 0.5 * e1) };
+        Powers { t, xy, g, log2_q, log2_s, log2_f }
     }
 
     /// [`Superquadric::distance_at`] from the [`Superquadric::powers`] `pw` at `l`.
@@ -255,26 +285,29 @@ impl Superquadric {
         let q = |x: f32, a: f32| (x / a) * (x / a);
         let (qx, qy, qz) = (q(l[0], a1), q(l[1], a2), q(l[2], a3));
         let live = |q: f32, t: f32| q < 1e4 && t > 0.0;
+        // Natural logarithms from the base-2 ones the powers took: ln q = log2 q · ln 2 (q < 10⁴ where live).
+        let ln = |log2: f32| log2 * core::f32::consts::LN_2;
+        let [lqx, lqy, lqz] = pw.log2_q;
         // ∂t/∂a and ∂t/∂ε of each term.
         let dt_da = |t: f32, q: f32, a: f32, e: f32| if live(q, t) { -2.0 * t / (e * a) } else { 0.0 };
-        let dt_de = |t: f32, q: f32, e: f32| if live(q, t) { -t * fastmath::ln(q) / (e * e) } else { 0.0 };
+        let dt_de = |t: f32, q: f32, lq: f32, e: f32| if live(q, t) { -t * ln(lq) / (e * e) } else { 0.0 };
         let p_over_s = if s > 1e-20 { p / s } else { 0.0 };
         let ratio = e2 / e1;
-        let ln_s = if s > 1e-20 { fastmath::ln(s) } else { 0.0 };
+        let ln_s = if s > 1e-20 { ln(pw.log2_s) } else { 0.0 };
         // ∂F for each parameter.
         let df = [
             ratio * p_over_s * dt_da(tx, qx, a1, e2),
             ratio * p_over_s * dt_da(ty, qy, a2, e2),
             dt_da(tz, qz, a3, e1),
             // ε1: through the exponent ε2/ε1 of P and through tz.
-            -p * ln_s * ratio / e1 + dt_de(tz, qz, e1),
+            -p * ln_s * ratio / e1 + dt_de(tz, qz, lqz, e1),
             // ε2: through the exponent of P and through tx, ty.
-            p * ln_s / e1 + ratio * p_over_s * (dt_de(tx, qx, e2) + dt_de(ty, qy, e2)),
+            p * ln_s / e1 + ratio * p_over_s * (dt_de(tx, qx, lqx, e2) + dt_de(ty, qy, lqy, e2)),
         ];
         let k = 0.5 * e1 * g / f;
         let mut out = df.map(|d| k * d);
         // ε1 also in the outer exponent: ∂G/∂ε1 += G·ln F / 2.
-        out[3] += 0.5 * g * fastmath::ln(f);
+        out[3] += 0.5 * g * ln(pw.log2_f);
         out
     }
 
