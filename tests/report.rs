@@ -173,6 +173,24 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
     assert_eq!((mmog[1].as_str(), mmog[6].as_str(), mmog[10].as_str()), ("–", "–", "–"), "MMOG has no superquadric");
     assert_eq!(mmog[2], "0.000");
 
+    // The instance masks: the dataset's (perfect on synthetic sets) and the geometric segmenter's, each row
+    // summary.json's.
+    let t5 = table(&md, "## Instance masks");
+    for name in ["desk", "tabletop"] {
+        let own = &t5[&(name.to_string(), "dataset".to_string())];
+        assert_eq!(&own[..3], ["1.000", "1.000", "1.000"], "{name}: perfect masks");
+        let path = out.join(name).join("full-segmenter").join("summary.json");
+        let seg: serde_json::Value = serde_json::from_str(&fs::read_to_string(path).unwrap()).unwrap();
+        let row = &t5[&(name.to_string(), "geometric segmenter".to_string())];
+        for (cell, k) in
+            row.iter().zip(["mask_recall", "mask_precision", "mask_mean_iou", "r2g_rmse_m", "adhesion_map"])
+        {
+            let expected = if k.ends_with("_m") { fmt_m(&seg[k]) } else { fmt(&seg[k]) };
+            assert_eq!(*cell, expected, "{name} segmenter {k}");
+        }
+        assert!(seg["mask_recall"].as_f64().is_some(), "{name}: the segmenter's recall is computed");
+    }
+
     let png = image::open(out.join("comparison.png")).unwrap();
     assert_eq!((png.width(), png.height()), m2smap::report::FIGURE_SIZE);
     let svg = fs::read_to_string(out.join("comparison.svg")).unwrap();

@@ -101,3 +101,65 @@ fn segments_the_cabinet_like_its_masks() {
     println!("cabinet: mean IoU {mean:.3} against the masks, {good} of {} frames at IoU >= 0.7", ious.len());
     assert!(mean >= 0.6, "the segmenter should find the cabinet: mean IoU {mean:.3}");
 }
+
+/// `m2smap segment` writes the segmenter's masks in the input format: mapped back with `run --masks`, they are
+/// the masks `run --segmenter geometric` made (same instances per frame, same recall, precision and IoU against
+/// `gt/`), and `--downscale` is refused in one line.
+#[test]
+fn segment_writes_masks_that_run_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("kitchen");
+    let o = common::m2smap(&["synth", "--scene", "kitchen", "--frames", "4", "--out", data.to_str().unwrap()]);
+    assert!(o.status.success());
+    let masks = dir.path().join("seg");
+    let o = common::m2smap(&["segment", data.to_str().unwrap(), "--out", masks.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for ext in ["png", "json"] {
+        let n = std::fs::read_dir(&masks).unwrap().filter(|e| e.as_ref().unwrap().path().extension().unwrap() == ext);
+        assert_eq!(n.count(), 4, "one .{ext} per frame");
+    }
+    let back = common::run_ok(&data, &dir.path().join("back"), &["--masks", masks.to_str().unwrap()]);
+    let own = common::run_ok(&data, &dir.path().join("own"), &["--segmenter", "geometric"]);
+    for key in ["mask_recall", "mask_precision", "mask_mean_iou"] {
+        assert_eq!(back[key], own[key], "{key}");
+    }
+    let per_frame = |run: &str| -> Vec<u64> {
+        let text = std::fs::read_to_string(dir.path().join(run).join("frames.jsonl")).unwrap();
+        text.lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["instances"].as_u64().unwrap())
+            .collect()
+    };
+    assert_eq!(per_frame("back"), per_frame("own"), "instances per frame");
+    assert!(per_frame("own").iter().all(|&n| n > 0));
+    assert!(own["mask_recall"].as_f64().is_some(), "the kitchen has gt/: recall is computed");
+    common::expect_failure(
+        &["segment", data.to_str().unwrap(), "--out", masks.to_str().unwrap(), "--downscale", "2"],
+        &["--downscale", "--masks"],
+    );
+}
+
+/// The mask metrics of `run` against `gt/`: perfect masks score 1, eroded masks keep every object at a lower
+/// IoU, and masks that miss objects lose recall but not precision.
+#[test]
+fn mask_metrics_follow_the_mask_quality() {
+    let dir = tempfile::tempdir().unwrap();
+    let make = |name: &str, extra: &[&str]| {
+        let data = dir.path().join(name);
+        let mut args = vec!["synth", "--scene", "clutter", "--frames", "3", "--out", data.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        assert!(common::m2smap(&args).status.success());
+        common::run_ok(&data, &dir.path().join(format!("{name}-run")), &["--variant", "mmp"])
+    };
+    let perfect = make("perfect", &[]);
+    for key in ["mask_recall", "mask_precision", "mask_mean_iou"] {
+        assert_eq!(perfect[key].as_f64(), Some(1.0), "{key} of perfect masks");
+    }
+    let eroded = make("eroded", &["--mask-erode", "3"]);
+    let iou = eroded["mask_mean_iou"].as_f64().unwrap();
+    assert_eq!(eroded["mask_recall"].as_f64(), Some(1.0));
+    assert!(iou < 0.97 && iou > 0.6, "eroded masks: mean IoU {iou}");
+    let missed = make("missed", &["--mask-miss", "0.5", "--seed", "3"]);
+    let recall = missed["mask_recall"].as_f64().unwrap();
+    assert!(recall < 0.9, "half the instances dropped: recall {recall}");
+    assert_eq!(missed["mask_precision"].as_f64(), Some(1.0));
+}

@@ -11,6 +11,7 @@ use m2smap_core::supervoxel::is_assigned;
 use m2smap_core::{Frame, Mapper, Params};
 
 use crate::dataset::Pose;
+use crate::masks::FrameMasks;
 use crate::synth::Surface;
 
 /// Semantic fusion metrics of one frame.
@@ -474,6 +475,111 @@ pub fn true_surface_metrics(map: &MapSamples, pose: &Pose, surfaces: &[Surface])
     t
 }
 
+/// Smallest ground-truth instance that [`mask_match`] counts, pixels: a sliver left by an occluder (fewer
+/// points than one object of the pipeline's `seg_min_points` at close range) is not an instance to find.
+pub const MASK_GT_MIN_PIXELS: u32 = 100;
+
+/// IoU a mask needs with a ground-truth instance to match it.
+pub const MASK_MATCH_IOU: f64 = 0.5;
+
+/// How one frame's instance masks match its ground-truth instance image (docs/metrics.md): every ground-truth
+/// id ≠ 0 with at least [`MASK_GT_MIN_PIXELS`] pixels is an instance to find (id 0 is structure: floor, walls,
+/// table, nothing), every mask instance with a pixel is a claim, and pairs with IoU ≥ [`MASK_MATCH_IOU`] match
+/// one to one (greedily by IoU). Recall = matched / ground-truth instances, precision = matched / mask instances.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MaskMatch {
+    /// Ground-truth instances to find.
+    pub gt_instances: u32,
+    /// Mask instances with at least one pixel.
+    pub mask_instances: u32,
+    /// Matched pairs.
+    pub matched: u32,
+    /// Sum of the matched pairs' IoU.
+    pub iou_sum: f64,
+}
+
+impl MaskMatch {
+    /// Matched / ground-truth instances (`None` without any).
+    pub fn recall(&self) -> Option<f64> {
+        (self.gt_instances > 0).then(|| self.matched as f64 / self.gt_instances as f64)
+    }
+
+    /// Matched / mask instances (`None` without any).
+    pub fn precision(&self) -> Option<f64> {
+        (self.mask_instances > 0).then(|| self.matched as f64 / self.mask_instances as f64)
+    }
+
+    /// Mean IoU of the matched pairs (`None` without a match).
+    pub fn mean_iou(&self) -> Option<f64> {
+        (self.matched > 0).then(|| self.iou_sum / self.matched as f64)
+    }
+
+    /// The sum of two frames' counts (a run's pooled figures).
+    pub fn add(&self, other: &MaskMatch) -> MaskMatch {
+        MaskMatch {
+            gt_instances: self.gt_instances + other.gt_instances,
+            mask_instances: self.mask_instances + other.mask_instances,
+            matched: self.matched + other.matched,
+            iou_sum: self.iou_sum + other.iou_sum,
+        }
+    }
+}
+
+/// [`MaskMatch`] of `masks` against the ground-truth ids `gt` (row-major, the masks' size).
+pub fn mask_match(masks: &FrameMasks, gt: &[u16]) -> MaskMatch {
+    let (w, h) = (masks.width as usize, masks.height as usize);
+    let view = masks.view();
+    let k = masks.instances.len();
+    let mut gt_area: HashMap<u16, u32> = HashMap::new();
+    for &id in gt.iter().take(w * h).filter(|&&id| id != 0) {
+        *gt_area.entry(id).or_default() += 1;
+    }
+    let mut area = vec![0u32; k];
+    let mut inter: HashMap<(usize, u16), u32> = HashMap::new();
+    for v in 0..h {
+        for u in 0..w {
+            let id = gt.get(v * w + u).copied().unwrap_or(0);
+            for (i, a) in area.iter_mut().enumerate() {
+                if view.contains(i, u as u16, v as u16) {
+                    *a += 1;
+                    if id != 0 {
+                        *inter.entry((i, id)).or_default() += 1;
+                    }
+                }
+            }
+        }
+    }
+    let counted = |id: u16| gt_area.get(&id).is_some_and(|&a| a >= MASK_GT_MIN_PIXELS);
+    let mut pairs: Vec<(f64, usize, u16)> = inter
+        .iter()
+        .filter(|((_, id), _)| counted(*id))
+        .map(|(&(i, id), &n)| {
+            let union = area.get(i).copied().unwrap_or(0) + gt_area.get(&id).copied().unwrap_or(0) - n;
+            (n as f64 / union.max(1) as f64, i, id)
+        })
+        .filter(|(iou, _, _)| *iou >= MASK_MATCH_IOU)
+        .collect();
+    pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let (mut used_mask, mut used_gt) = (vec![false; k], Vec::<u16>::new());
+    let mut out = MaskMatch {
+        gt_instances: gt_area.keys().filter(|&&id| counted(id)).count() as u32,
+        mask_instances: area.iter().filter(|&&a| a > 0).count() as u32,
+        ..MaskMatch::default()
+    };
+    for (iou, i, id) in pairs {
+        if used_mask.get(i).copied().unwrap_or(true) || used_gt.contains(&id) {
+            continue;
+        }
+        if let Some(u) = used_mask.get_mut(i) {
+            *u = true;
+        }
+        used_gt.push(id);
+        out.matched += 1;
+        out.iou_sum += iou;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -717,5 +823,52 @@ mod tests {
         assert_eq!(percentile(&[0.0, 0.03, 0.01, 0.02], 0.95), Some(0.03));
         assert_eq!(percentile(&(1..=100).map(f64::from).collect::<Vec<_>>(), 0.95), Some(95.0));
         assert_eq!(percentile(&[], 0.95), None);
+    }
+
+    /// Hand-built masks against a hand-built ground truth: one exact match, one object split in two masks (the
+    /// larger part, IoU 0.6, matches; the other is a claim that matches nothing), one mask over an object and the
+    /// structure below it (IoU 0.5: matches), a mask on a sliver below the pixel minimum (not an instance to
+    /// find, but a claim), and id 0 never an instance.
+    #[test]
+    fn mask_match_counts_what_it_should() {
+        use crate::masks::{FrameMasks, Pixels};
+        use m2smap_core::Instance;
+        let (w, h) = (40u16, 20u16);
+        let mut gt = vec![0u16; w as usize * h as usize];
+        let mut ids = vec![0u16; gt.len()];
+        let fill = |img: &mut Vec<u16>, x0: usize, x1: usize, y0: usize, y1: usize, id: u16| {
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    img[y * w as usize + x] = id;
+                }
+            }
+        };
+        // Ground truth: A (id 1), B (2), C (3), each 10 × 10; a 6-pixel sliver D (4).
+        fill(&mut gt, 0, 10, 0, 10, 1);
+        fill(&mut gt, 10, 20, 0, 10, 2);
+        fill(&mut gt, 20, 30, 0, 10, 3);
+        fill(&mut gt, 30, 32, 0, 3, 4);
+        // Masks: A exactly (1); B as 4 + 6 columns (2, 3); C with the structure below it (4); the sliver (5).
+        fill(&mut ids, 0, 10, 0, 10, 1);
+        fill(&mut ids, 10, 14, 0, 10, 2);
+        fill(&mut ids, 14, 20, 0, 10, 3);
+        fill(&mut ids, 20, 30, 0, 20, 4);
+        fill(&mut ids, 30, 32, 0, 3, 5);
+        let instance = |id: u16| Instance { id, class: 1, score: 1.0, bbox: [0, 0, w - 1, h - 1] };
+        let masks =
+            FrameMasks { width: w, height: h, instances: (1..=5).map(instance).collect(), pixels: Pixels::Ids(ids) };
+        let m = mask_match(&masks, &gt);
+        assert_eq!(m.gt_instances, 3, "A, B and C; the sliver is below the minimum");
+        assert_eq!(m.mask_instances, 5);
+        assert_eq!(m.matched, 3, "A (IoU 1), B's larger part (0.6), C with its structure (0.5)");
+        assert!((m.iou_sum - 2.1).abs() < 1e-9, "{m:?}");
+        assert_eq!(m.recall(), Some(1.0));
+        assert_eq!(m.precision(), Some(0.6));
+        assert!((m.mean_iou().unwrap_or(0.0) - 0.7).abs() < 1e-9);
+        // Without C's mask: recall 2/3; without any mask nothing is claimed.
+        let no_c =
+            FrameMasks { instances: masks.instances.iter().filter(|i| i.id != 4).copied().collect(), ..masks.clone() };
+        assert_eq!(mask_match(&no_c, &gt).matched, 2);
+        assert_eq!(MaskMatch::default().recall(), None);
     }
 }

@@ -238,6 +238,20 @@ enum Command {
         #[command(flatten)]
         how: MappingArgs,
     },
+    /// Write the built-in geometric segmenter's instance masks of every frame into DIR in the input mask format
+    /// (DIR/<stem>.png, 16-bit ids, and DIR/<stem>.json), to inspect, edit and map with `run --masks DIR`.
+    Segment {
+        /// Dataset folder.
+        dataset: PathBuf,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Process at most N frames.
+        #[arg(long)]
+        frames: Option<usize>,
+        #[command(flatten)]
+        how: MappingArgs,
+    },
     /// Run every variant on every dataset; writes DIR/report.md (the paper's Tables I and II), the comparison
     /// figure DIR/comparison.svg and .png, and one run folder per dataset and variant.
     Eval {
@@ -396,6 +410,31 @@ fn execute(cli: Cli) -> Result<()> {
                     m.report.planes,
                     m.report.sqs,
                     m.report.gmms,
+                    out.display()
+                );
+                Ok(())
+            })
+        }
+        Command::Segment { dataset, out, frames, how } => {
+            if how.downscale > 1 {
+                anyhow::bail!("segment: --downscale would write masks smaller than the frames (`run --masks` reads masks at the frames' size)");
+            }
+            with_mapper(&dataset, &how, None, Some(Segmenter::Geometric), |s| {
+                let d = s.dataset;
+                std::fs::create_dir_all(&out).with_context(|| format!("{}: cannot create", out.display()))?;
+                let n = frames.map_or(d.frames.len(), |k| k.min(d.frames.len()));
+                let mut instances = 0usize;
+                for k in 0..n {
+                    let mapped = map_frame(s.mapper, d, k, s.source, s.labels, s.seg)?;
+                    let masks = mapped.masks.ok_or_else(|| anyhow!("frame {k}: the segmenter made no masks"))?;
+                    instances += masks.instances.len();
+                    m2smap::masks::write_frame_masks(&out, &d.frames[k].stem, &masks, s.labels)?;
+                }
+                println!(
+                    "{n} frames, {:.1} instances per frame -> {} (map them with: m2smap run {} --masks {})",
+                    instances as f64 / n.max(1) as f64,
+                    out.display(),
+                    dataset.display(),
                     out.display()
                 );
                 Ok(())

@@ -228,6 +228,32 @@ pub fn parse_id_masks(
     Ok(FrameMasks { width, height, instances, pixels: Pixels::Ids(ids) })
 }
 
+/// Writes `masks` as frame `stem` of the input mask format (docs/formats.md) into `dir`: a 16-bit id image
+/// `<stem>.png` and the instance list `<stem>.json` with each instance's label from `labels`, so that
+/// [`read_frame_masks`] reads the same masks back (bit planes are flattened to ids, the first instance wins).
+pub fn write_frame_masks(dir: &Path, stem: &str, masks: &FrameMasks, labels: &LabelTable) -> Result<()> {
+    let ids: Vec<u16> = match &masks.pixels {
+        Pixels::Ids(ids) => ids.clone(),
+        Pixels::Bits(_) => (0..masks.height)
+            .flat_map(|v| (0..masks.width).map(move |u| (u, v)))
+            .map(|(u, v)| masks.id_at(u, v))
+            .collect(),
+    };
+    let png = dir.join(format!("{stem}.png"));
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(masks.width as u32, masks.height as u32, ids)
+        .ok_or_else(|| anyhow!("{}: mask size does not match its pixels", png.display()))?
+        .save(&png)
+        .with_context(|| format!("{}: cannot write", png.display()))?;
+    let list: Vec<serde_json::Value> = masks
+        .instances
+        .iter()
+        .map(|i| serde_json::json!({ "id": i.id, "label": labels.name(i.class), "score": i.score, "bbox": i.bbox }))
+        .collect();
+    let json = dir.join(format!("{stem}.json"));
+    fs::write(&json, serde_json::to_string(&serde_json::json!({ "instances": list }))?)
+        .with_context(|| format!("{}: cannot write", json.display()))
+}
+
 fn read_names(dir: &Path) -> Result<Vec<String>> {
     for name in ["names.txt", "classes.txt", "coco.names"] {
         let p = dir.join(name);

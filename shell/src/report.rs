@@ -38,6 +38,9 @@ pub struct DatasetRuns {
     pub path: PathBuf,
     /// `(variant, summary)` for every variant.
     pub runs: Vec<(Variant, Summary)>,
+    /// `full` with the geometric segmenter's masks instead of the dataset's, when the dataset has `gt/` (the
+    /// masks are judged against it).
+    pub segmented: Option<Summary>,
 }
 
 impl DatasetRuns {
@@ -121,7 +124,34 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
             }
             runs.push((v, s));
         }
-        all.push(DatasetRuns { name, path: path.clone(), runs });
+        let segmented = if path.join("gt").is_dir() {
+            let s = run(&RunOptions {
+                dataset: path.clone(),
+                out: opts.out.join(&name).join("full-segmenter"),
+                variant: Some(Variant::Full),
+                frames: opts.frames,
+                config: None,
+                camera: None,
+                profile: ProfileChoice::Host,
+                downscale: 1,
+                masks: None,
+                segmenter: Some(crate::run::Segmenter::Geometric),
+                faults: None,
+                progress: false,
+            })?;
+            if opts.verbose {
+                println!(
+                    "{name} full with segmenter masks: recall {}, precision {}, mean IoU {}",
+                    cell(s.mask_recall),
+                    cell(s.mask_precision),
+                    cell(s.mask_mean_iou)
+                );
+            }
+            Some(s)
+        } else {
+            None
+        };
+        all.push(DatasetRuns { name, path: path.clone(), runs, segmented });
     }
     write_report(&opts.out, &all)?;
     Ok(all)
@@ -329,7 +359,43 @@ pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
         }
     }
     map_level_table(&mut s, datasets);
+    mask_table(&mut s, datasets);
     s
+}
+
+/// The "Instance masks" section: the dataset's masks and the geometric segmenter's, judged against `gt/`.
+fn mask_table(s: &mut String, datasets: &[DatasetRuns]) {
+    let with_gt: Vec<&DatasetRuns> = datasets.iter().filter(|d| d.segmented.is_some()).collect();
+    if with_gt.is_empty() {
+        return;
+    }
+    let _ = writeln!(s, "\n## Instance masks\n");
+    let _ = writeln!(
+        s,
+        "Masks against the ground-truth instance ids of `gt/` (id 0, the structure, excluded; instances of at least          {} pixels): recall and precision at IoU ≥ {}, matched one to one, and the mean IoU of the matches, pooled          over the frames; with the `full` map each made (R2G, map-level adhesion per frame).\n",
+        crate::eval::MASK_GT_MIN_PIXELS,
+        crate::eval::MASK_MATCH_IOU
+    );
+    let _ = writeln!(
+        s,
+        "| Dataset | masks | recall | precision | mean IoU | R2G (m) | adhesion |\n|---|---|---:|---:|---:|---:|---:|"
+    );
+    for d in with_gt {
+        let rows = [("dataset", d.summary(Variant::Full)), ("geometric segmenter", d.segmented.as_ref())];
+        for (what, x) in rows {
+            let Some(x) = x else { continue };
+            let _ = writeln!(
+                s,
+                "| {} | {what} | {} | {} | {} | {} | {} |",
+                d.name,
+                cell(x.mask_recall),
+                cell(x.mask_precision),
+                cell(x.mask_mean_iou),
+                cell_m(x.r2g_rmse_m),
+                cell(x.adhesion_map)
+            );
+        }
+    }
 }
 
 /// The "Map-level metrics" section: each variant's own map judged from all the surface samples of its

@@ -183,6 +183,16 @@ pub struct FrameRecord {
     pub adhesion_map: Option<f64>,
     /// Map-level adhesion cases among the superquadrics.
     pub adhesion_map_sq: Option<f64>,
+    /// Instance recall of this frame's masks (file or segmenter) against `gt/` at IoU ≥ 0.5
+    /// ([`eval::mask_match`]; needs `gt/`).
+    pub mask_recall: Option<f64>,
+    /// Instance precision of the masks at IoU ≥ 0.5.
+    pub mask_precision: Option<f64>,
+    /// Mean IoU of the matched masks.
+    pub mask_mean_iou: Option<f64>,
+    /// The counts behind the three (pooled over the run for `summary.json`; not written).
+    #[serde(skip)]
+    pub mask_match: Option<eval::MaskMatch>,
     /// G2R against the true surfaces, all samples, metres ([`eval::true_surface_metrics`]; needs
     /// `gt/objects.json` and a pose).
     pub g2r_true_rmse_m: Option<f64>,
@@ -283,6 +293,13 @@ pub struct Summary {
     pub adhesion_map: Option<f64>,
     /// Mean map-level superquadric adhesion cases per frame.
     pub adhesion_map_sq: Option<f64>,
+    /// Instance recall of the masks against `gt/` at IoU ≥ 0.5, pooled over the frames (matched / ground-truth
+    /// instances; [`eval::mask_match`]).
+    pub mask_recall: Option<f64>,
+    /// Instance precision of the masks at IoU ≥ 0.5, pooled (matched / mask instances).
+    pub mask_precision: Option<f64>,
+    /// Mean IoU of the matched masks, pooled.
+    pub mask_mean_iou: Option<f64>,
     /// Mean G2R against the true surfaces, metres.
     pub g2r_true_rmse_m: Option<f64>,
     /// Mean G2R of the superquadric samples against the true surfaces, metres.
@@ -624,6 +641,14 @@ fn replay<P: Profile + Zeroable>(
             let behind = eval::behind_support(&map, &obs);
             let adhesion = eval::adhesion_cases(&map, &obs);
             let truth = surfaces.as_deref().zip(fref.pose).map(|(s, pose)| eval::true_surface_metrics(&map, &pose, s));
+            // Without masks nothing is claimed and every ground-truth instance is missed.
+            let no_masks = || FrameMasks {
+                width: loaded.width,
+                height: loaded.height,
+                instances: vec![],
+                pixels: Pixels::Ids(vec![]),
+            };
+            let mask_match = gt.as_deref().map(|g| eval::mask_match(masks.as_ref().unwrap_or(&no_masks()), g));
             let map_metrics_ms = start.elapsed().as_secs_f64() * 1e3;
             let penetrations = truth.as_ref().map(|t| t.penetrations(false)).unwrap_or_default();
             let penetrations_sq = truth.as_ref().map(|t| t.penetrations(true)).unwrap_or_default();
@@ -680,6 +705,10 @@ fn replay<P: Profile + Zeroable>(
                 sq_behind_support_max_m: has_sq.map(|b| b.max_depth_m),
                 adhesion_map: adhesion.map(|a| a.0 as f64),
                 adhesion_map_sq: adhesion.map(|a| a.1 as f64),
+                mask_recall: mask_match.and_then(|m| m.recall()),
+                mask_precision: mask_match.and_then(|m| m.precision()),
+                mask_mean_iou: mask_match.and_then(|m| m.mean_iou()),
+                mask_match,
                 g2r_true_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_rmse_m),
                 g2r_true_sq_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_sq_rmse_m),
                 penetration_p95_m: penetration.0,
@@ -728,6 +757,7 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
     let ms = median(&records.iter().map(|r| r.ms).collect::<Vec<_>>());
     let penetration = p95_and_max(&pooled(records, |r| &r.penetrations));
     let penetration_sq = p95_and_max(&pooled(records, |r| &r.penetrations_sq));
+    let masks_pooled = records.iter().filter_map(|r| r.mask_match).reduce(|a, b| a.add(&b));
     let mut pools: BTreeMap<String, PoolRecord> = BTreeMap::new();
     for r in records {
         for (name, p) in &r.pools {
@@ -794,6 +824,9 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
         sq_behind_support_max_m: mean_of(records.iter().map(|r| r.sq_behind_support_max_m)),
         adhesion_map: mean_of(records.iter().map(|r| r.adhesion_map)),
         adhesion_map_sq: mean_of(records.iter().map(|r| r.adhesion_map_sq)),
+        mask_recall: masks_pooled.and_then(|m| m.recall()),
+        mask_precision: masks_pooled.and_then(|m| m.precision()),
+        mask_mean_iou: masks_pooled.and_then(|m| m.mean_iou()),
         g2r_true_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_rmse_m)),
         g2r_true_sq_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_sq_rmse_m)),
         // Over every primitive of every frame, not a mean of per-frame values.
