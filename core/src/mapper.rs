@@ -233,9 +233,9 @@ impl<'s> Mapper<'s> {
     }
 
     /// Runs the whole pipeline with instance masks made by the geometric segmenter ([`crate::segment`]) from
-    /// this frame's own Gaussians: writes the id image into `ids` (one per pixel) and the instances into
-    /// `instances` (caller-owned, like file masks), then annotates with them. Returns the report and the number of
-    /// instances. On error nothing changes.
+    /// this frame's depth: writes the id image into `ids` (one per pixel) and the instances into `instances`
+    /// (caller-owned, like file masks), then maps the frame with them exactly as [`Mapper::process`] maps file
+    /// masks. Returns the report and the number of instances. On error the map and tracks are unchanged.
     pub fn process_segmented(
         &mut self,
         frame: Frame<'_>,
@@ -243,27 +243,14 @@ impl<'s> Mapper<'s> {
         instances: &mut [Instance],
         class: u16,
     ) -> Result<(FrameReport, usize), FrameError> {
-        let checked = self.check(frame, None)?;
+        self.check(frame, None)?;
         if ids.len() != frame.pixels() {
             return Err(FrameError::Masks(crate::error::MaskError::PixelLength {
                 expected: frame.pixels(),
                 found: ids.len(),
             }));
         }
-        self.stage_voxels(&checked);
-        self.stage_supervoxels();
-        self.stage_gaussians(&checked);
-        let stats = segment::segment(
-            &checked.frame,
-            self.voxels.as_slice(),
-            self.slots,
-            self.gaussians.as_mut_slice(),
-            self.scratch,
-            &self.params,
-            ids,
-            instances,
-            class,
-        );
+        let stats = segment::segment(&frame, self.scratch, &self.params, ids, instances, class);
         let n = stats.instances as usize;
         let masks = MaskSet {
             width: frame.width,
@@ -271,11 +258,14 @@ impl<'s> Mapper<'s> {
             instances: instances.get(..n).unwrap_or(&[]),
             pixels: crate::masks::MaskPixels::IdImage(ids),
         };
-        let checked = CheckedFrame { frame, masks: Some(masks) };
+        let checked = self.check(frame, Some(masks))?;
+        self.stage_voxels(&checked);
+        self.report.segmented_instances = stats.instances;
+        self.stage_supervoxels();
+        self.stage_gaussians(&checked);
         self.stage_annotate(&checked);
         self.stage_separate(&checked);
         self.stage_superquadrics(&checked);
-        self.report.segmented_instances = stats.instances;
         Ok((*self.finish_frame(), n))
     }
 

@@ -183,17 +183,19 @@ pub struct Params {
     pub mask_split_min_share: f32,
 
     // --- geometric segmenter (`segment`) ------------------------------------------------------------------
-    /// Largest box gap between two Gaussians of one segmented object, metres (3 cm: one voxel).
-    pub seg_gap: f32,
+    /// Two neighbouring cells of the segmenter whose normals differ by less than this are joined even across a
+    /// concave boundary (sensor noise on a flat or gently curved surface), degrees.
+    pub seg_concave_tolerance_deg: f32,
     /// Fewest points of a segmented instance.
     pub seg_min_points: u32,
-    /// Largest box diagonal of a segmented instance, metres (larger components are structure).
+    /// Largest box diagonal of a segmented instance, metres (larger components are structure: a counter with
+    /// its cupboards, a wall).
     pub seg_max_extent: f32,
     /// Confidence given to segmented instances (must reach `min_confidence` to be used).
     pub seg_score: f32,
-    /// Smallest principal scale σ0 of a flat plane that counts as supporting structure, metres (0.3 m: a
-    /// uniformly covered patch about 1 m long).
-    pub seg_support_sigma: f32,
+    /// Smallest largest standard deviation of a flat segmented component that is structure (a table top, a
+    /// wall seen between objects), not an object, metres (0.1 m: about 35 cm across).
+    pub seg_structure_sigma: f32,
 
     // --- 5. semantic-constrained fusion -----------------------------------------------------------------
     /// Largest AABB gap d_connect, metres (paper: 0.15).
@@ -285,11 +287,11 @@ impl Default for Params {
             small_fragment_ratio: 0.75,
             min_confidence: 0.5,
             mask_split_min_share: 0.1,
-            seg_gap: 0.03,
+            seg_concave_tolerance_deg: 15.0,
             seg_min_points: 150,
-            seg_max_extent: 1.8,
+            seg_max_extent: 1.5,
             seg_score: 0.8,
-            seg_support_sigma: 0.3,
+            seg_structure_sigma: 0.1,
             d_connect: 0.15,
             theta_min_deg: 15.0,
             l_min: 0.10,
@@ -374,10 +376,13 @@ impl Params {
         check(self.small_fragment_ratio.is_finite() && self.small_fragment_ratio > 0.0, "small_fragment_ratio")?;
         check(unit(self.min_confidence), "min_confidence")?;
         check(unit(self.mask_split_min_share), "mask_split_min_share")?;
-        check(pos(self.seg_gap), "seg_gap")?;
+        check(
+            pos(self.seg_concave_tolerance_deg) && self.seg_concave_tolerance_deg < 90.0,
+            "seg_concave_tolerance_deg",
+        )?;
         check(pos(self.seg_max_extent), "seg_max_extent")?;
         check(unit(self.seg_score), "seg_score")?;
-        check(pos(self.seg_support_sigma), "seg_support_sigma")?;
+        check(pos(self.seg_structure_sigma), "seg_structure_sigma")?;
         check(pos(self.d_connect), "d_connect")?;
         check(self.theta_min_deg.is_finite() && (0.0..=90.0).contains(&self.theta_min_deg), "theta_min_deg")?;
         check(pos(self.l_min), "l_min")?;

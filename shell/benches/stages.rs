@@ -4,11 +4,11 @@
 //! timed in place inside one pass over a frame, and every frame is processed `REPS` times.
 //!
 //! Rows with segmenter masks: the core's geometric segmenter (`Mapper::process_segmented`, as `m2smap run
-//! --segmenter geometric`) runs between stages 3 and 4, where no stage hook reaches it. Its masks depend only on
-//! the frame, so they are made beforehand by `process_segmented` in the same schedule, and the timed pass runs
-//! the stages as `process_segmented` does (voxels without mask slots, then annotation with the segmenter's
-//! masks), checked to map the same; the segmenter's own time (process_segmented's minus the replay's, on the
-//! `mmp` pair whose stages have no superquadric search to blur it) is printed below the table. The segmenter and
+//! --segmenter geometric`) runs before stage 1 and its masks then go through the stages as file masks do. Its
+//! masks depend only on the frame, so they are made beforehand by `process_segmented` in the same schedule, and
+//! the timed pass runs the stages with them, checked to map the same; the segmenter's own time
+//! (process_segmented's minus the replay's, on the `mmp` pair whose stages have no superquadric search to blur
+//! it) is printed below the table. The segmenter and
 //! ycbv rows, like `m2smap run`, map with the dataset's poses (superquadric tracks in the world frame); the
 //! cabinet and no-mask redkitchen rows keep the camera frame, as before.
 //!
@@ -60,17 +60,8 @@ impl Timing {
 }
 
 /// Runs every frame `REPS` times through the stages, timing each. With `cold` every superquadric track is
-/// forgotten right before the superquadric stage (every object is fitted from its initial guesses). With
-/// `segmented` the masks join only after stage 3, as in `Mapper::process_segmented` (voxels without mask slots,
-/// the Gaussians the segmenter's masks were made from).
-fn bench<P: Profile>(
-    storage: &mut P,
-    params: Params,
-    camera: &Camera,
-    frames: &Frames,
-    cold: bool,
-    segmented: bool,
-) -> Timing {
+/// forgotten right before the superquadric stage (every object is fitted from its initial guesses).
+fn bench<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &Frames, cold: bool) -> Timing {
     let mut t = Timing::default();
     let mut mapper = Mapper::new(&mut *storage, params).expect("valid parameters");
     for input in frames {
@@ -78,14 +69,13 @@ fn bench<P: Profile>(
         let masks = input.masks.as_ref().map(|m| m.view());
         for _ in 0..REPS {
             let t0 = Instant::now();
-            let early = mapper.check(view, masks.filter(|_| !segmented)).expect("valid frame");
-            mapper.stage_voxels(&early);
+            let checked = mapper.check(view, masks).expect("valid frame");
+            mapper.stage_voxels(&checked);
             let t1 = Instant::now();
             mapper.stage_supervoxels();
             let t2 = Instant::now();
-            mapper.stage_gaussians(&early);
+            mapper.stage_gaussians(&checked);
             let t3 = Instant::now();
-            let checked = if segmented { mapper.check(view, masks).expect("valid masks") } else { early };
             mapper.stage_annotate(&checked);
             let t4 = Instant::now();
             mapper.stage_separate(&checked);
@@ -156,7 +146,7 @@ fn bench_segmented<P: Profile>(
     frames: &Frames,
 ) -> (Timing, Frames, Vec<f64>) {
     let (masked, whole, reports) = segmenter_frames(&mut *storage, params, camera, frames);
-    let t = bench(&mut *storage, params, camera, &masked, false, true);
+    let t = bench(&mut *storage, params, camera, &masked, false);
     let same = |a: &FrameReport, b: &FrameReport| {
         (a.points, a.gaussians, a.annotated, a.clusters, a.planes, a.objects, a.sqs, a.sq_rejected, a.tracks)
             == (b.points, b.gaussians, b.annotated, b.clusters, b.planes, b.objects, b.sqs, b.sq_rejected, b.tracks)
@@ -224,9 +214,9 @@ fn main() {
     match load("tum_fr3_cabinet", 58) {
         Some((camera, posed)) => {
             let (name, frames) = ("tum_fr3_cabinet", unposed(&posed));
-            row(&format!("{name} (host)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false, false));
-            row(&format!("{name} (mcu)"), frames.len(), &bench(&mut *mcu, full, &camera, &frames, false, false));
-            let t = bench(&mut *host, full, &camera, &frames, true, false);
+            row(&format!("{name} (host)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false));
+            row(&format!("{name} (mcu)"), frames.len(), &bench(&mut *mcu, full, &camera, &frames, false));
+            let t = bench(&mut *host, full, &camera, &frames, true);
             row(&format!("{name} (host, cold SQ fits)"), frames.len(), &t);
             cold.push(cold_line(&format!("{name} (file masks)"), frames.len(), &t));
         }
@@ -236,16 +226,8 @@ fn main() {
     match load("7scenes_redkitchen", 60) {
         Some((camera, posed)) => {
             let (name, frames) = ("7scenes_redkitchen", unposed(&posed));
-            row(
-                &format!("{name} (host, no masks)"),
-                frames.len(),
-                &bench(&mut *host, full, &camera, &frames, false, false),
-            );
-            row(
-                &format!("{name} (mcu, no masks)"),
-                frames.len(),
-                &bench(&mut *mcu, full, &camera, &frames, false, false),
-            );
+            row(&format!("{name} (host, no masks)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false));
+            row(&format!("{name} (mcu, no masks)"), frames.len(), &bench(&mut *mcu, full, &camera, &frames, false));
             // The segmenter's masks, as `m2smap run --segmenter geometric` (which maps with the dataset's poses).
             let (t, masked, _) = bench_segmented(&mut *host, full, &camera, &posed);
             row(&format!("{name} (host, segmenter masks)"), posed.len(), &t);
@@ -259,7 +241,7 @@ fn main() {
                 "{name}: the geometric segmenter itself takes {:.3} ms per frame more, in neither row's stage columns (process_segmented minus the staged replay, variant mmp; median {instances:.0} instances per frame)",
                 median(&seg)
             ));
-            let t = bench(&mut *host, full, &camera, &masked, true, true);
+            let t = bench(&mut *host, full, &camera, &masked, true);
             cold.push(cold_line(&format!("{name} (segmenter masks)"), masked.len(), &t));
         }
         None => skipped.push("7scenes_redkitchen".into()),
@@ -268,17 +250,13 @@ fn main() {
     match load("ycbv_0000", 10) {
         Some((camera, frames)) => {
             let name = "ycbv_0000";
-            row(
-                &format!("{name} (host, gt masks)"),
-                frames.len(),
-                &bench(&mut *host, full, &camera, &frames, false, false),
-            );
+            row(&format!("{name} (host, gt masks)"), frames.len(), &bench(&mut *host, full, &camera, &frames, false));
             row(
                 &format!("{name} (host, gt masks, mmp)"),
                 frames.len(),
-                &bench(&mut *host, mmp, &camera, &frames, false, false),
+                &bench(&mut *host, mmp, &camera, &frames, false),
             );
-            let t = bench(&mut *host, full, &camera, &frames, true, false);
+            let t = bench(&mut *host, full, &camera, &frames, true);
             cold.push(cold_line(&format!("{name} (gt masks)"), frames.len(), &t));
         }
         None => skipped.push("ycbv_0000".into()),
@@ -293,12 +271,8 @@ fn main() {
                 Input { frame: f.frame, masks: Some(masks), pose: None }
             })
             .collect();
-        row(
-            &format!("synthetic {scene} (host)"),
-            frames.len(),
-            &bench(&mut *host, full, &s.camera, &frames, false, false),
-        );
-        let t = bench(&mut *host, full, &s.camera, &frames, true, false);
+        row(&format!("synthetic {scene} (host)"), frames.len(), &bench(&mut *host, full, &s.camera, &frames, false));
+        let t = bench(&mut *host, full, &s.camera, &frames, true);
         cold.push(cold_line(&format!("synthetic {scene} (perfect masks)"), frames.len(), &t));
     }
 
