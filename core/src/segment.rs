@@ -16,8 +16,8 @@
 //!    wide (largest σ ≥ `seg_structure_sigma` = 10 cm: a table top or wall seen between objects).
 //! 2. **Masks**: every pixel with a valid depth on its cell's surface takes the cell's instance.
 //!
-//! No per-cell pool: the union-find parents and the cells' depths live in the id image before the masks are
-//! written over them, the component counts in the scratch.
+//! No per-cell pool: the union-find parents, the cells' depths and their quantised normals live in the id image
+//! before the masks are written over them, the component counts in the scratch.
 //!
 //! Measured against ground-truth ids (recall / precision at IoU ≥ 0.5) and the trade-offs tried: see
 //! docs/pipeline.md, "The geometric segmenter".
@@ -55,6 +55,8 @@ struct Grid<'f> {
     rows: usize,
     /// Each cell's depth (raw units, 0 = none): see [`Grid::fill`].
     depth: &'f [u16],
+    /// Each cell's unit normal × 32767 as three i16 bit patterns (all 0 = none), once computed.
+    normals: &'f [u16],
 }
 
 impl<'f> Grid<'f> {
@@ -131,6 +133,15 @@ impl<'f> Grid<'f> {
         self.point_at(cx, cy).is_some_and(|q| libm::fabsf(q[2] - p[2]) <= self.jump(p[2]))
     }
 
+    /// [`Grid::surfel`] from the normals computed once per cell (quantised to 1/32767).
+    fn cached_surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
+        let p = self.point_at(cx, cy)?;
+        let i = 3 * self.index(cx, cy);
+        let &[a, b, c] = self.normals.get(i..i + 3)? else { return None };
+        let n = [a, b, c].map(|x| x as i16 as f32 / 32767.0);
+        (n != [0.0; 3]).then_some((p, n))
+    }
+
     /// The point and unit normal (facing the camera) of cell (cx, cy): the normal from the neighbouring cells'
     /// points on either side along each axis (the cell's own point stands in for a neighbour that is missing or
     /// across a depth jump).
@@ -183,25 +194,34 @@ pub fn segment(
     // 1. Components on a grid of cells over the depth image (an organized cloud: neighbours are known
     // without a search, and the cells are as fine at 0.5 m as at 4 m): neighbouring cells join when no depth
     // jump separates them and their boundary is locally convex or nearly flat (LCCP).
-    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 2));
+    // `ids` holds the parents (n), the cells' depths (n) and their quantised normals (3n) until the masks.
+    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 5));
     let n = layout.1 * layout.2;
     let (parents, rest) = ids.split_at_mut(n.min(ids.len()));
-    let depth = rest.get_mut(..n).unwrap_or(&mut []);
+    let (depth, rest) = rest.split_at_mut(n.min(rest.len()));
+    let normals = rest.get_mut(..3 * n).unwrap_or(&mut []);
     Grid::fill(frame, params, layout, depth);
-    let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth };
+    let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth, normals: &[] };
+    for (i, q) in normals.chunks_exact_mut(3).enumerate() {
+        let normal = grid.surfel(i % grid.cols.max(1), i / grid.cols.max(1)).map_or([0.0; 3], |(_, nrm)| nrm);
+        for (x, c) in q.iter_mut().zip(normal) {
+            *x = (libm::roundf(c * 32767.0) as i16) as u16;
+        }
+    }
+    let grid = Grid { normals, ..grid };
     let cos_flat = libm::cosf(params.seg_concave_tolerance_deg.to_radians());
     for (i, p) in parents.iter_mut().enumerate() {
         *p = i as u16;
     }
     for cy in 0..grid.rows {
         for cx in 0..grid.cols {
-            let Some((pa, na)) = grid.surfel(cx, cy) else { continue };
+            let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
             for (dx, dy) in [(1, 0), (0, 1)] {
                 let (bx, by) = (cx + dx, cy + dy);
                 if !grid.joined(pa, bx, by) {
                     continue;
                 }
-                let Some((pb, nb)) = grid.surfel(bx, by) else { continue };
+                let Some((pb, nb)) = grid.cached_surfel(bx, by) else { continue };
                 let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
                 let convex = linalg::dot(linalg::sub(na, nb), towards) >= CONVEX_MIN;
                 if convex || linalg::dot(na, nb) >= cos_flat {
