@@ -258,7 +258,9 @@ impl<'s> Mapper<'s> {
             instances: instances.get(..n).unwrap_or(&[]),
             pixels: crate::masks::MaskPixels::IdImage(ids),
         };
-        let checked = self.check(frame, Some(masks))?;
+        // The frame passed `check` above; only the masks are new.
+        masks.validate(frame.width, frame.height)?;
+        let checked = CheckedFrame { frame, masks: Some(masks) };
         self.stage_voxels(&checked);
         self.report.segmented_instances = stats.instances;
         self.stage_supervoxels();

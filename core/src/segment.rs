@@ -38,6 +38,14 @@ const MAX_CANDIDATES: usize = 96;
 /// A component is flat when its smallest standard deviation is at most this share of the middle one.
 const FLAT_RATIO: f32 = 0.2;
 
+/// Largest depth difference between neighbouring `step`-pixel cells (or a pixel and its cell) at depth `z` on
+/// one surface, metres: three cell spacings (a surface inclined up to ~70° from the view) plus the depth
+/// tolerance.
+fn surface_jump(frame: &Frame<'_>, params: &Params, step: usize, z: f32) -> f32 {
+    let spacing = step as f32 * z / frame.intrinsics.fx.max(1e-3);
+    3.0 * spacing + params.depth_tolerance(z)
+}
+
 /// A component that may be an object: its cells' moments and box (camera frame, metres), and its instance id.
 struct Candidate {
     moments: linalg::Moments,
@@ -84,9 +92,7 @@ impl<'f> Grid<'f> {
             let (uc, vc) = ((u0 + step / 2).min(w - 1), (v0 + step / 2).min(h - 1));
             *d = 0;
             let Some(centre) = at(uc, vc) else { continue };
-            let z = frame.metres(centre);
-            let spacing = step as f32 * z / frame.intrinsics.fx.max(1e-3);
-            let tolerance = ((3.0 * spacing + params.depth_tolerance(z)) * frame.depth_scale) as u32;
+            let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
             let (mut sum, mut n) = (0u32, 0u32);
             for v in v0..(v0 + step).min(h) {
                 for u in u0..(u0 + step).min(w) {
@@ -121,11 +127,9 @@ impl<'f> Grid<'f> {
         self.point_at(i % self.cols.max(1), i / self.cols.max(1))
     }
 
-    /// Largest depth difference between neighbouring cells at depth `z` on one surface, metres: three cell
-    /// spacings (a surface inclined up to ~70° from the view) plus the depth tolerance.
+    /// [`surface_jump`] on this grid.
     fn jump(&self, z: f32) -> f32 {
-        let spacing = self.step as f32 * z / self.frame.intrinsics.fx.max(1e-3);
-        3.0 * spacing + self.params.depth_tolerance(z)
+        surface_jump(self.frame, self.params, self.step, z)
     }
 
     /// Whether cell (cx, cy) has a point on the same surface as `p` (no depth jump between them).
@@ -314,9 +318,7 @@ pub fn segment(
             let uc = (cx * step + step / 2).min(w - 1);
             let centre = frame.depth.get(vc * w + uc).copied().unwrap_or(0);
             let tolerance = if (lo..=hi).contains(&centre) {
-                let z = frame.metres(centre);
-                let jump = 3.0 * step as f32 * z / frame.intrinsics.fx.max(1e-3) + params.depth_tolerance(z);
-                Some((jump * frame.depth_scale) as u32)
+                Some((surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32)
             } else {
                 None
             };

@@ -94,23 +94,24 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
     fs::create_dir_all(&opts.out).with_context(|| format!("{}: cannot create", opts.out.display()))?;
     let mut all = Vec::new();
     for (path, name) in opts.datasets.iter().zip(dataset_names(&opts.datasets)) {
+        // One run of `path` with `variant` (and the segmenter's masks instead of the dataset's) into `dir`.
+        let run_opts = |variant: Variant, segmenter: Option<crate::run::Segmenter>, dir: &str| RunOptions {
+            dataset: path.clone(),
+            out: opts.out.join(&name).join(dir),
+            variant: Some(variant),
+            frames: opts.frames,
+            config: None,
+            camera: None,
+            profile: ProfileChoice::Host,
+            downscale: 1,
+            masks: None,
+            segmenter,
+            faults: None,
+            progress: false,
+        };
         let mut runs = Vec::new();
         for v in Variant::ALL {
-            let run_opts = RunOptions {
-                dataset: path.clone(),
-                out: opts.out.join(&name).join(v.name()),
-                variant: Some(v),
-                frames: opts.frames,
-                config: None,
-                camera: None,
-                profile: ProfileChoice::Host,
-                downscale: 1,
-                masks: None,
-                segmenter: None,
-                faults: None,
-                progress: false,
-            };
-            let s = run(&run_opts)?;
+            let s = run(&run_opts(v, None, v.name()))?;
             if opts.verbose {
                 println!(
                     "{name} {:>5}: {} frames, {:.2} primitives, G2R {:.4} m, {:.0} B, {:.1} ms",
@@ -125,20 +126,7 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
             runs.push((v, s));
         }
         let segmented = if path.join("gt").is_dir() {
-            let s = run(&RunOptions {
-                dataset: path.clone(),
-                out: opts.out.join(&name).join("full-segmenter"),
-                variant: Some(Variant::Full),
-                frames: opts.frames,
-                config: None,
-                camera: None,
-                profile: ProfileChoice::Host,
-                downscale: 1,
-                masks: None,
-                segmenter: Some(crate::run::Segmenter::Geometric),
-                faults: None,
-                progress: false,
-            })?;
+            let s = run(&run_opts(Variant::Full, Some(crate::run::Segmenter::Geometric), "full-segmenter"))?;
             if opts.verbose {
                 println!(
                     "{name} full with segmenter masks: recall {}, precision {}, mean IoU {}",
