@@ -15,6 +15,12 @@
 //! logarithm as well as a power (the fit's analytic shape gradient) or several powers of one base (the
 //! perturbed models of its Jacobian) takes each logarithm once: measured, a cold fit takes 6.9 ms instead of
 //! 8.9 ms on `ycbv_0000` and 7.4 ms instead of 8.5 ms on `tum_fr3_cabinet`, with every map bit-identical.
+//!
+//! [`log2_select`] and [`pow_log2_select`] are the same functions without branches (every case computed, the
+//! result selected), so the fit's loops over a few points at a time vectorise on a host (SSE2: four f32 lanes)
+//! while staying the same IEEE operations, hence the same bits, as the scalar forms the Cortex-M7 runs:
+//! measured, a cold fit takes 4.7 ms instead of 7.1 ms on `ycbv_0000` and 5.5 ms instead of 7.8 ms on
+//! `tum_fr3_cabinet` (best of 3 on a busy 2-core machine), the firmware's instruction counts are unchanged.
 
 use crate::linalg::floor_i32;
 
@@ -23,7 +29,7 @@ const LOG2_E: f32 = core::f32::consts::LOG2_E;
 const LN_2: f32 = core::f32::consts::LN_2;
 
 /// log2 of a positive, normal, finite `x` (no checks: see [`pow`]).
-#[inline]
+#[inline(always)]
 fn log2_normal(x: f32) -> f32 {
     let bits = x.to_bits();
     let mut e = ((bits >> 23) & 0xff) as i32 - 127;
@@ -48,6 +54,12 @@ fn exp2(t: f32) -> f32 {
     if t < -126.0 || t.is_nan() {
         return if t.is_nan() { f32::NAN } else { 0.0 };
     }
+    exp2_core(t)
+}
+
+/// 2^t for −126 ≤ t < 128.
+#[inline(always)]
+fn exp2_core(t: f32) -> f32 {
     // t = i + f with i the nearest integer: 2^f = e^(f·ln 2) with |f·ln 2| ≤ 0.347, Taylor to degree 7
     // (remainder < 5e-9); exact at integer t.
     let i = floor_i32(t + 0.5).min(127);
@@ -106,6 +118,42 @@ pub fn pow_log2(l: f32, y: f32) -> f32 {
     exp2(y * l)
 }
 
+/// [`log2`] without branches (every case computed, the result selected), so a loop over lanes of it
+/// vectorises: the same bits as [`log2`] for every x.
+#[inline(always)]
+pub fn log2_select(x: f32) -> f32 {
+    let normal = log2_normal(x);
+    let special = if x == f32::INFINITY {
+        x
+    } else if x >= 0.0 {
+        f32::NEG_INFINITY
+    } else {
+        f32::NAN
+    };
+    if (f32::MIN_POSITIVE..f32::INFINITY).contains(&x) {
+        normal
+    } else {
+        special
+    }
+}
+
+/// [`pow_log2`] without branches (see [`log2_select`]): the same bits as `pow_log2(l, y)`.
+#[inline(always)]
+pub fn pow_log2_select(l: f32, y: f32) -> f32 {
+    let t = y * l;
+    let inside = (-126.0..128.0).contains(&t);
+    let power = exp2_core(if inside { t } else { 0.0 });
+    if inside {
+        power
+    } else if t >= 128.0 {
+        f32::INFINITY
+    } else if t.is_nan() {
+        f32::NAN
+    } else {
+        0.0
+    }
+}
+
 /// Natural logarithm of x ≥ 0: [`log2`]`(x)·ln 2` (same error and special values).
 #[inline]
 pub fn ln(x: f32) -> f32 {
@@ -156,6 +204,23 @@ mod tests {
             for y in [0.05f32, 0.5, 1.0, 1.9, 3.3, 10.0, 20.0] {
                 let (a, b) = (pow(x, y), pow_log2(log2(x), y));
                 assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()), "x {x:e} y {y}: {a:e} vs {b:e}");
+            }
+        }
+    }
+
+    #[test]
+    fn select_forms_are_the_same_bits() {
+        let same = |a: f32, b: f32| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+        let xs = [0.0f32, -0.0, 1e-40, f32::MIN_POSITIVE, 1e-6, 0.3, 1.0, 1.7, 9.9e3, 3e38, f32::INFINITY, -1.0];
+        for x in xs
+            .into_iter()
+            .chain([f32::NAN, f32::NEG_INFINITY])
+            .chain((0..700).map(|i| 10f32.powf(-40.0 + i as f32 * 0.11)))
+        {
+            assert!(same(log2(x), log2_select(x)), "log2 {x:e}");
+            for y in [0.05f32, 0.5, 1.0, 1.9, 3.3, 10.0, 20.0, 1e30] {
+                let l = log2(x);
+                assert!(same(pow_log2(l, y), pow_log2_select(l, y)), "pow_log2 {x:e} {y}");
             }
         }
     }

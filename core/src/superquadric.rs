@@ -107,6 +107,11 @@ struct Powers {
     log2_f: f32,
 }
 
+/// Points per batch of [`Superquadric::powers_lanes`]: two SSE or one AVX register of f32 on a host, so the
+/// compiler vectorises the lane loops (the same IEEE operations as the scalar path, so the same bits on every
+/// target; the Cortex-M7 runs them one by one).
+const LANES: usize = 4;
+
 /// Signed power sign(w)·|w|^e used by the parametric surface.
 #[inline]
 fn spow(w: f32, e: f32) -> f32 {
@@ -190,6 +195,100 @@ impl Superquadric {
         let xy = fastmath::pow_log2(log2_s, e2 / e1);
         let log2_f = fastmath::log2(xy + t[2]);
         Powers { t, xy, g: fastmath::pow_log2(log2_f, 0.5 * e1), log2_q, log2_s, log2_f }
+    }
+
+    /// [`Superquadric::powers`] at each of [`LANES`] local coordinates, lane by lane without branches so the
+    /// lane loops vectorise: the same bits as `powers` at each.
+    #[inline]
+    fn powers_lanes(&self, l: &[Vec3; LANES]) -> [Powers; LANES] {
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let (y2, y1, yxy, yg) = (1.0 / e2, 1.0 / e1, e2 / e1, 0.5 * e1);
+        let log2_term = |x: f32, a: f32| {
+            let q = (x / a) * (x / a);
+            fastmath::log2_select(q.min(1e4))
+        };
+        let mut out = [Powers::default(); LANES];
+        for (o, l) in out.iter_mut().zip(l) {
+            let log2_q = [log2_term(l[0], a1), log2_term(l[1], a2), log2_term(l[2], a3)];
+            let t = [
+                fastmath::pow_log2_select(log2_q[0], y2),
+                fastmath::pow_log2_select(log2_q[1], y2),
+                fastmath::pow_log2_select(log2_q[2], y1),
+            ];
+            let log2_s = fastmath::log2_select(t[0] + t[1]);
+            let xy = fastmath::pow_log2_select(log2_s, yxy);
+            let log2_f = fastmath::log2_select(xy + t[2]);
+            *o = Powers { t, xy, g: fastmath::pow_log2_select(log2_f, yg), log2_q, log2_s, log2_f };
+        }
+        out
+    }
+
+    /// [`Superquadric::powers_reusing`] at each of [`LANES`] local coordinates `l`, with `base`'s powers `b` there:
+    /// what `self` shares with `base` is decided once for all lanes (a term whose half-axis and ε are the same
+    /// is copied; S and its power only when the first two terms and both ε are), the rest is taken lane by lane
+    /// as in [`Superquadric::powers_lanes`]. The same bits as `powers` at each.
+    #[inline]
+    fn powers_lanes_reusing(&self, base: &Superquadric, l: &[Vec3; LANES], b: &[Powers; LANES]) -> [Powers; LANES] {
+        let differs = |x: f32, y: f32| x.to_bits() != y.to_bits();
+        let [a1, a2, a3] = self.scales;
+        let [e1, e2] = self.eps;
+        let new_q = [differs(a1, base.scales[0]), differs(a2, base.scales[1]), differs(a3, base.scales[2])];
+        let (new_e1, new_e2) = (differs(e1, base.eps[0]), differs(e2, base.eps[1]));
+        let new_t = [new_q[0] || new_e2, new_q[1] || new_e2, new_q[2] || new_e1];
+        let new_s = new_t[0] || new_t[1];
+        let new_xy = new_s || new_e1 || new_e2;
+        let (y2, y1, yxy, yg) = (1.0 / e2, 1.0 / e1, e2 / e1, 0.5 * e1);
+        let log2_term = |x: f32, a: f32| {
+            let q = (x / a) * (x / a);
+            fastmath::log2_select(q.min(1e4))
+        };
+        let mut out = *b;
+        for (k, (&fresh, (&a, &y))) in new_q.iter().zip([a1, a2, a3].iter().zip(&[y2, y2, y1])).enumerate() {
+            if fresh {
+                for (o, l) in out.iter_mut().zip(l) {
+                    if let (Some(q), Some(&x)) = (o.log2_q.get_mut(k), l.get(k)) {
+                        *q = log2_term(x, a);
+                    }
+                }
+            }
+            if new_t.get(k).copied().unwrap_or(true) {
+                for o in out.iter_mut() {
+                    if let (Some(t), Some(&q)) = (o.t.get_mut(k), o.log2_q.get(k)) {
+                        *t = fastmath::pow_log2_select(q, y);
+                    }
+                }
+            }
+        }
+        if new_s {
+            for o in out.iter_mut() {
+                o.log2_s = fastmath::log2_select(o.t[0] + o.t[1]);
+            }
+        }
+        if new_xy {
+            for o in out.iter_mut() {
+                o.xy = fastmath::pow_log2_select(o.log2_s, yxy);
+            }
+        }
+        for o in out.iter_mut() {
+            o.log2_f = fastmath::log2_select(o.xy + o.t[2]);
+            o.g = fastmath::pow_log2_select(o.log2_f, yg);
+        }
+        out
+    }
+
+    /// [`Superquadric::powers`] at the local coordinates of each camera-frame point of `points`, into `out` (as
+    /// many as both hold), [`LANES`] at a time.
+    fn powers_of_points(&self, points: &[Vec3], out: &mut [Powers]) {
+        for (chunk, o) in points.chunks(LANES).zip(out.chunks_mut(LANES)) {
+            let mut l = [[0.0f32; 3]; LANES];
+            for (d, &p) in l.iter_mut().zip(chunk) {
+                *d = self.local(p);
+            }
+            for (d, pw) in o.iter_mut().zip(self.powers_lanes(&l)) {
+                *d = pw;
+            }
+        }
     }
 
     /// [`Superquadric::powers`] at `l`, reusing `base`'s powers and logarithms `b` at the same `l` wherever the
@@ -679,19 +778,20 @@ fn cost(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
 /// [`cost`], keeping each point's [`Powers`] in `kept` (as many as it holds).
 fn cost_keeping(sq: &Superquadric, prob: &Problem<'_>, kept: &mut [Powers]) -> f32 {
     let mut kept = kept.iter_mut();
-    let data: f32 = prob
-        .points
-        .iter()
-        .map(|&p| {
-            let l = sq.local(p);
-            let pw = sq.powers(l);
+    let mut data = 0.0f32;
+    for chunk in prob.points.chunks(LANES) {
+        let mut ls = [[0.0f32; 3]; LANES];
+        for (d, &p) in ls.iter_mut().zip(chunk) {
+            *d = sq.local(p);
+        }
+        for (l, pw) in ls.iter().zip(sq.powers_lanes(&ls)).take(chunk.len()) {
             if let Some(k) = kept.next() {
                 *k = pw;
             }
-            let d = if prob.radial { Superquadric::radial_distance(l, &pw) } else { sq.distance_from(l, &pw).0 };
-            d * d
-        })
-        .sum();
+            let d = if prob.radial { Superquadric::radial_distance(*l, &pw) } else { sq.distance_from(*l, &pw).0 };
+            data += d * d;
+        }
+    }
     let c = data + penalties(sq, prob);
     if c.is_finite() {
         c
@@ -891,6 +991,44 @@ impl Perturbed {
     }
 }
 
+impl Perturbed {
+    /// [`Perturbed::distance_row`] at each of [`LANES`] local coordinates `l` (powers `pw` of `base` there), the
+    /// first `n` of them: the forward differences of the shape columns take each perturbed model's powers at
+    /// all lanes at once ([`Superquadric::powers_lanes_reusing`]). The same bits as `distance_row` at each.
+    #[inline]
+    fn distance_rows(&self, l: &[Vec3; LANES], pw: &[Powers; LANES], n: usize) -> [(f32, [f32; SQ_PARAMS]); LANES] {
+        let mut out = [(0.0f32, [0.0f32; SQ_PARAMS]); LANES];
+        if self.radial {
+            for ((o, l), pw) in out.iter_mut().zip(l).zip(pw).take(n) {
+                *o = self.distance_row(*l, pw);
+            }
+            return out;
+        }
+        let mut normals = [[0.0f32; 3]; LANES];
+        for (((o, n), l), pw) in out.iter_mut().zip(normals.iter_mut()).zip(l).zip(pw).take(n) {
+            let (r, normal, _) = self.base.distance_parts(*l, pw);
+            o.0 = r;
+            *n = normal;
+        }
+        for (j, (m, h)) in self.shape.iter().zip(&self.steps).take(self.columns).enumerate() {
+            let moved = m.powers_lanes_reusing(&self.base, l, pw);
+            for ((o, l), mp) in out.iter_mut().zip(l).zip(&moved).take(n) {
+                if let Some(d) = o.1.get_mut(j) {
+                    *d = (m.distance_from(*l, mp).0 - o.0) / h;
+                }
+            }
+        }
+        for ((o, l), normal) in out.iter_mut().zip(l).zip(&normals).take(n) {
+            let dt = linalg::scale(linalg::mat_vec(&self.base.rotation, *normal), -1.0);
+            let dr = linalg::cross(*normal, *l);
+            for (x, d) in o.1.iter_mut().skip(5).zip(dt.iter().chain(&dr)) {
+                *x = *d;
+            }
+        }
+        out
+    }
+}
+
 /// Up to `iterations` more Levenberg–Marquardt iterations of `run`; stops early when a step improves the
 /// objective by less than 10⁻⁴ of itself or no damping finds a better point.
 fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, params: &Params) {
@@ -942,12 +1080,28 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
             *m = model(&t, r0);
         }
         let mut normal = Normal { jtj: [[0.0f32; NORMAL_LANES]; SQ_PARAMS], jtr: [0.0f32; SQ_PARAMS] };
-        let reuse = points.len() <= kept.len() && kept_model.is_some_and(|k| same_bits(&k, &base));
-        for (&p, k) in points.iter().zip(kept.iter().chain(core::iter::repeat(&Powers::default()))) {
-            let l = base.local(p);
-            let pw = if reuse { *k } else { base.powers(l) };
-            let (r, row) = jac.distance_row(l, &pw);
-            normal.add(&row, r, 1.0);
+        let batched = points.len() <= kept.len();
+        if batched && !kept_model.is_some_and(|k| same_bits(&k, &base)) {
+            base.powers_of_points(points, &mut kept);
+        }
+        if batched {
+            for (chunk, pws) in points.chunks(LANES).zip(kept.chunks(LANES)) {
+                let mut ls = [[0.0f32; 3]; LANES];
+                let mut pw = [Powers::default(); LANES];
+                for ((d, &p), (q, k)) in ls.iter_mut().zip(chunk).zip(pw.iter_mut().zip(pws)) {
+                    *d = base.local(p);
+                    *q = *k;
+                }
+                for (r, row) in jac.distance_rows(&ls, &pw, chunk.len()).iter().take(chunk.len()) {
+                    normal.add(row, *r, 1.0);
+                }
+            }
+        } else {
+            for &p in points {
+                let l = base.local(p);
+                let (r, row) = jac.distance_row(l, &base.powers(l));
+                normal.add(&row, r, 1.0);
+            }
         }
         // Free-space probes inside the shape: one-sided residuals d < 0 with the same rows as the data.
         for &p in prob.evidence.free.iter().chain(prob.extra) {
@@ -1414,6 +1568,58 @@ fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params) -
 #[cfg(test)]
 mod gradient_tests {
     use super::*;
+
+    fn same_powers(a: &Powers, b: &Powers) -> bool {
+        let bits = |p: &Powers| {
+            let v = p.t.into_iter().chain([p.xy, p.g]).chain(p.log2_q).chain([p.log2_s, p.log2_f]);
+            v.map(|x| if x.is_nan() { u32::MAX } else { x.to_bits() })
+        };
+        bits(a).eq(bits(b))
+    }
+
+    /// The lane forms of the powers (plain and reusing a base model's) give the same bits as the scalar
+    /// [`Superquadric::powers`], on, inside, far outside the shape, on its axes and at its centre.
+    #[test]
+    fn lane_powers_are_the_scalar_bits() {
+        let shapes =
+            [([0.2f32, 0.1, 0.3], [0.3f32, 0.3]), ([0.15, 0.25, 0.1], [1.0, 1.0]), ([0.3, 0.2, 0.12], [0.1, 1.9])];
+        let points: [Vec3; 9] = [
+            [0.1, 0.05, 0.2],
+            [0.3, -0.1, 0.05],
+            [-0.05, 0.2, -0.25],
+            [0.0, 0.0, 0.0],
+            [0.0, 0.12, 0.0],
+            [40.0, -3.0, 0.01],
+            [1e-30, -1e-20, 0.3],
+            [0.2, 0.1, 0.3],
+            [-7.0, 9.0, -12.0],
+        ];
+        for (scales, eps) in shapes {
+            let base = Superquadric { scales, eps, centre: [0.0; 3], rotation: linalg::IDENTITY };
+            for chunk in points.chunks(LANES) {
+                let mut l = [[0.0f32; 3]; LANES];
+                l.iter_mut().zip(chunk).for_each(|(d, p)| *d = *p);
+                let lanes = base.powers_lanes(&l);
+                for (lane, p) in lanes.iter().zip(&l) {
+                    assert!(same_powers(lane, &base.powers(*p)), "{scales:?} {eps:?} at {p:?}");
+                }
+                for j in 0..5 {
+                    let mut moved = base;
+                    if j < 3 {
+                        moved.scales[j] += 1e-3;
+                    } else {
+                        moved.eps[j - 3] -= 2e-3;
+                    }
+                    let reused = moved.powers_lanes_reusing(&base, &l, &lanes);
+                    for (lane, p) in reused.iter().zip(&l) {
+                        assert!(same_powers(lane, &moved.powers(*p)), "moved {j}: {scales:?} {eps:?} at {p:?}");
+                        let scalar = moved.powers_reusing(&base, *p, &base.powers(*p));
+                        assert!(same_powers(lane, &scalar), "reusing {j} at {p:?}");
+                    }
+                }
+            }
+        }
+    }
 
     /// The analytic ∂G/∂(a, ε) agrees with central differences of G at points inside, on and outside shapes.
     #[test]
