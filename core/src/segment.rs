@@ -85,18 +85,21 @@ impl<'f> Grid<'f> {
     fn fill(frame: &Frame<'_>, params: &Params, (step, cols, rows): (usize, usize, usize), depth: &mut [u16]) {
         let (w, h) = (frame.width as usize, frame.height as usize);
         let (lo, hi) = frame.raw_range(params);
-        let at = |u: usize, v: usize| frame.depth.get(v * w + u).copied().filter(|r| (lo..=hi).contains(r));
         for (i, d) in depth.iter_mut().enumerate().take(cols * rows) {
             let (cx, cy) = (i % cols.max(1), i / cols.max(1));
             let (u0, v0) = (cx * step, cy * step);
             let (uc, vc) = ((u0 + step / 2).min(w - 1), (v0 + step / 2).min(h - 1));
             *d = 0;
-            let Some(centre) = at(uc, vc) else { continue };
+            let Some(centre) = frame.depth.get(vc * w + uc).copied().filter(|r| (lo..=hi).contains(r)) else {
+                continue;
+            };
             let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
             let (mut sum, mut n) = (0u32, 0u32);
+            let u1 = (u0 + step).min(w);
             for v in v0..(v0 + step).min(h) {
-                for u in u0..(u0 + step).min(w) {
-                    if let Some(r) = at(u, v).filter(|&r| (r as u32).abs_diff(centre as u32) <= tolerance) {
+                for &r in frame.depth.get(v * w + u0..v * w + u1).unwrap_or(&[]) {
+                    let near = (r as u32).abs_diff(centre as u32) <= tolerance;
+                    if near && (lo..=hi).contains(&r) {
                         sum += r as u32;
                         n += 1;
                     }
@@ -132,14 +135,13 @@ impl<'f> Grid<'f> {
         surface_jump(self.frame, self.params, self.step, z)
     }
 
-    /// Whether cell (cx, cy) has a point on the same surface as `p` (no depth jump between them).
-    fn joined(&self, p: Vec3, cx: usize, cy: usize) -> bool {
-        self.point_at(cx, cy).is_some_and(|q| libm::fabsf(q[2] - p[2]) <= self.jump(p[2]))
-    }
-
     /// [`Grid::surfel`] from the normals computed once per cell (quantised to 1/32767).
     fn cached_surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
-        let p = self.point_at(cx, cy)?;
+        self.cached_normal(cx, cy, self.point_at(cx, cy)?)
+    }
+
+    /// The cached normal of cell (cx, cy) with its point `p`.
+    fn cached_normal(&self, cx: usize, cy: usize, p: Vec3) -> Option<(Vec3, Vec3)> {
         let i = 3 * self.index(cx, cy);
         let &[a, b, c] = self.normals.get(i..i + 3)? else { return None };
         let n = [a, b, c].map(|x| x as i16 as f32 / 32767.0);
@@ -151,12 +153,13 @@ impl<'f> Grid<'f> {
     /// across a depth jump).
     fn surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
         let p = self.point_at(cx, cy)?;
+        let jump = self.jump(p[2]);
         let side = |dx: isize, dy: isize| -> Option<Vec3> {
             let (x, y) = (cx as isize + dx, cy as isize + dy);
             if x < 0 || y < 0 {
                 return None;
             }
-            self.point_at(x as usize, y as usize).filter(|q| libm::fabsf(q[2] - p[2]) <= self.jump(p[2]))
+            self.point_at(x as usize, y as usize).filter(|q| libm::fabsf(q[2] - p[2]) <= jump)
         };
         let along = |dx: isize, dy: isize| -> Option<Vec3> {
             match (side(dx, dy), side(-dx, -dy)) {
@@ -220,12 +223,12 @@ pub fn segment(
     for cy in 0..grid.rows {
         for cx in 0..grid.cols {
             let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
+            let jump = grid.jump(pa[2]);
             for (dx, dy) in [(1, 0), (0, 1)] {
                 let (bx, by) = (cx + dx, cy + dy);
-                if !grid.joined(pa, bx, by) {
-                    continue;
-                }
-                let Some((pb, nb)) = grid.cached_surfel(bx, by) else { continue };
+                // Joined: cell b has a point on the same surface (no depth jump between them).
+                let Some(q) = grid.point_at(bx, by).filter(|q| libm::fabsf(q[2] - pa[2]) <= jump) else { continue };
+                let Some((pb, nb)) = grid.cached_normal(bx, by, q) else { continue };
                 let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
                 let convex = linalg::dot(linalg::sub(na, nb), towards) >= CONVEX_MIN;
                 if convex || linalg::dot(na, nb) >= cos_flat {
@@ -309,11 +312,14 @@ pub fn segment(
     let (lo, hi) = frame.raw_range(params);
     let (w, h) = (frame.width as usize, frame.height as usize);
     let (step, cols) = (layout.0, layout.1);
-    for v in (0..h).rev() {
-        let vc = ((v / step) * step + step / 2).min(h - 1);
+    // Cell by cell from the last, each block's rows from the last: a pixel of cell c has an index ≥ c (the
+    // block starts at row cy·step ≥ cy, column cx·step ≥ cx), and every cell still to come is below c.
+    let rows = layout.2;
+    for cy in (0..rows).rev() {
+        let (v0, v1) = (cy * step, ((cy + 1) * step).min(h));
+        let vc = (v0 + step / 2).min(h - 1);
         for cx in (0..cols).rev() {
-            let cell = (v / step) * cols + cx;
-            let instance = ids.get(cell).copied().unwrap_or(0);
+            let instance = ids.get(cy * cols + cx).copied().unwrap_or(0);
             // The pixel must lie on its cell's surface: within the jump tolerance of the cell's centre pixel.
             let uc = (cx * step + step / 2).min(w - 1);
             let centre = frame.depth.get(vc * w + uc).copied().unwrap_or(0);
@@ -322,19 +328,29 @@ pub fn segment(
             } else {
                 None
             };
-            for u in (cx * step..((cx + 1) * step).min(w)).rev() {
-                let i = v * w + u;
-                let raw = frame.depth.get(i).copied().unwrap_or(0);
-                let near =
-                    (lo..=hi).contains(&raw) && tolerance.is_some_and(|t| (raw as u32).abs_diff(centre as u32) <= t);
-                let id = if near { instance } else { 0 };
-                if let Some(x) = ids.get_mut(i) {
-                    *x = id;
+            let (u0, u1) = (cx * step, ((cx + 1) * step).min(w));
+            for v in (v0..v1).rev() {
+                let mut hit = false;
+                for u in (u0..u1).rev() {
+                    let i = v * w + u;
+                    let raw = frame.depth.get(i).copied().unwrap_or(0);
+                    let near = (lo..=hi).contains(&raw)
+                        && tolerance.is_some_and(|t| (raw as u32).abs_diff(centre as u32) <= t);
+                    let id = if near { instance } else { 0 };
+                    if let Some(x) = ids.get_mut(i) {
+                        *x = id;
+                    }
+                    hit |= id != 0;
                 }
-                if let Some(inst) = id.checked_sub(1).and_then(|k| instances.get_mut(k as usize)) {
-                    let (u, v) = (u as u16, v as u16);
-                    let b = &mut inst.bbox;
-                    *b = [b[0].min(u), b[1].min(v), b[2].max(u), b[3].max(v)];
+                // The instance's box over this row's pixels that took it.
+                if hit {
+                    if let Some(inst) = instance.checked_sub(1).and_then(|k| instances.get_mut(k as usize)) {
+                        let row = ids.get(v * w + u0..v * w + u1).unwrap_or(&[]);
+                        let first = row.iter().position(|&x| x == instance).unwrap_or(0) + u0;
+                        let last = row.iter().rposition(|&x| x == instance).unwrap_or(0) + u0;
+                        let b = &mut inst.bbox;
+                        *b = [b[0].min(first as u16), b[1].min(v as u16), b[2].max(last as u16), b[3].max(v as u16)];
+                    }
                 }
             }
         }

@@ -244,21 +244,24 @@ impl Superquadric {
             fastmath::log2_select(q.min(1e4))
         };
         let mut out = *b;
-        for (k, (&fresh, (&a, &y))) in new_q.iter().zip([a1, a2, a3].iter().zip(&[y2, y2, y1])).enumerate() {
-            if fresh {
-                for (o, l) in out.iter_mut().zip(l) {
-                    if let (Some(q), Some(&x)) = (o.log2_q.get_mut(k), l.get(k)) {
-                        *q = log2_term(x, a);
-                    }
-                }
-            }
-            if new_t.get(k).copied().unwrap_or(true) {
-                for o in out.iter_mut() {
-                    if let (Some(t), Some(&q)) = (o.t.get_mut(k), o.log2_q.get(k)) {
-                        *t = fastmath::pow_log2_select(q, y);
-                    }
-                }
-            }
+        // Each term by hand (constant indices keep the lane loops vectorisable).
+        if new_q[0] {
+            out.iter_mut().zip(l).for_each(|(o, l)| o.log2_q[0] = log2_term(l[0], a1));
+        }
+        if new_q[1] {
+            out.iter_mut().zip(l).for_each(|(o, l)| o.log2_q[1] = log2_term(l[1], a2));
+        }
+        if new_q[2] {
+            out.iter_mut().zip(l).for_each(|(o, l)| o.log2_q[2] = log2_term(l[2], a3));
+        }
+        if new_t[0] {
+            out.iter_mut().for_each(|o| o.t[0] = fastmath::pow_log2_select(o.log2_q[0], y2));
+        }
+        if new_t[1] {
+            out.iter_mut().for_each(|o| o.t[1] = fastmath::pow_log2_select(o.log2_q[1], y2));
+        }
+        if new_t[2] {
+            out.iter_mut().for_each(|o| o.t[2] = fastmath::pow_log2_select(o.log2_q[2], y1));
         }
         if new_s {
             for o in out.iter_mut() {
