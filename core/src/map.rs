@@ -4,8 +4,17 @@
 use crate::linalg::{self, Mat3, Vec3};
 use crate::superquadric::Superquadric;
 
-/// A bitmap of occupied plane cells: `width × height` cells from cell (a0, b0), row-major, bit `i % 8` of byte
-/// `i / 8` for cell index i.
+/// How [`CellBits::bits`] codes the occupied cells.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CellCoding {
+    /// A bitmap: bit `k % 8` of byte `k / 8` for cell index k = row × width + column.
+    Bitmap,
+    /// Run lengths over the cells in index order, alternately unset and set (starting with unset, which may
+    /// be an empty run), each an unsigned LEB128 varint; together they cover every cell ([`CellRuns`]).
+    Runs,
+}
+
+/// The occupied plane cells: `width × height` cells from cell (a0, b0), row-major, coded as [`CellCoding`] says.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CellBits<'a> {
     /// Cell index along e1 of the first column.
@@ -16,35 +25,126 @@ pub struct CellBits<'a> {
     pub width: u16,
     /// Rows.
     pub height: u16,
-    /// The bits, at least `ceil(width × height / 8)` bytes.
+    /// How `bits` codes the cells.
+    pub coding: CellCoding,
+    /// The coded cells: for a bitmap at least `ceil(width × height / 8)` bytes.
     pub bits: &'a [u8],
 }
 
+/// The run lengths of [`CellCoding::Runs`] bytes, in order; it stops at the end or at a malformed varint (more
+/// than three bytes), which [`crate::wire::decode`] refuses before a map is handed out.
+#[derive(Debug, Clone)]
+pub struct CellRuns<'a> {
+    bytes: &'a [u8],
+}
+
+impl<'a> CellRuns<'a> {
+    /// The runs of `bytes`.
+    pub fn new(bytes: &'a [u8]) -> Self {
+        CellRuns { bytes }
+    }
+
+    /// Whether every byte was consumed by well-formed varints (after iterating to the end).
+    pub fn is_exhausted(&self) -> bool {
+        self.bytes.is_empty()
+    }
+}
+
+impl Iterator for CellRuns<'_> {
+    type Item = u32;
+
+    fn next(&mut self) -> Option<u32> {
+        let mut value = 0u32;
+        for (k, &b) in self.bytes.iter().enumerate().take(3) {
+            value |= u32::from(b & 0x7f) << (7 * k);
+            if b & 0x80 == 0 {
+                self.bytes = self.bytes.get(k + 1..).unwrap_or(&[]);
+                return Some(value);
+            }
+        }
+        None
+    }
+}
+
+/// Appends run length `n` as an unsigned LEB128 varint to `out` at `*len`; `false` when it does not fit.
+pub fn push_run(out: &mut [u8], len: &mut usize, mut n: u32) -> bool {
+    loop {
+        let Some(slot) = out.get_mut(*len) else { return false };
+        let more = n >= 0x80;
+        *slot = (n & 0x7f) as u8 | if more { 0x80 } else { 0 };
+        *len += 1;
+        n >>= 7;
+        if !more {
+            return true;
+        }
+    }
+}
+
 impl CellBits<'_> {
+    /// Calls `f(column, row)` for every occupied cell, in row-major order.
+    pub fn for_each_set(&self, mut f: impl FnMut(usize, usize)) {
+        let w = (self.width as usize).max(1);
+        let cells = self.width as usize * self.height as usize;
+        match self.coding {
+            CellCoding::Bitmap => {
+                for k in 0..cells {
+                    if self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1) {
+                        f(k % w, k / w);
+                    }
+                }
+            }
+            CellCoding::Runs => {
+                let mut k = 0usize;
+                for (r, run) in CellRuns::new(self.bits).enumerate() {
+                    let end = (k + run as usize).min(cells);
+                    if r % 2 == 1 {
+                        for c in k..end {
+                            f(c % w, c / w);
+                        }
+                    }
+                    k = end;
+                }
+            }
+        }
+    }
+
     /// Whether column `i`, row `j` is occupied.
     pub fn is_set(&self, i: usize, j: usize) -> bool {
+        if i >= self.width as usize || j >= self.height as usize {
+            return false;
+        }
         let k = j * self.width as usize + i;
-        i < self.width as usize && self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1)
+        match self.coding {
+            CellCoding::Bitmap => self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1),
+            CellCoding::Runs => {
+                let mut start = 0usize;
+                for (r, run) in CellRuns::new(self.bits).enumerate() {
+                    start += run as usize;
+                    if k < start {
+                        return r % 2 == 1;
+                    }
+                }
+                false
+            }
+        }
     }
 
     /// Occupied cells.
     pub fn count(&self) -> usize {
-        (0..self.height as usize).map(|j| (0..self.width as usize).filter(|&i| self.is_set(i, j)).count()).sum()
+        let mut n = 0;
+        self.for_each_set(|_, _| n += 1);
+        n
     }
 
     /// The smallest (i0, j0, i1, j1) box holding every occupied cell, `None` when empty.
     pub fn occupied_box(&self) -> Option<(usize, usize, usize, usize)> {
         let mut b: Option<(usize, usize, usize, usize)> = None;
-        for j in 0..self.height as usize {
-            for i in 0..self.width as usize {
-                if self.is_set(i, j) {
-                    b = Some(match b {
-                        None => (i, j, i, j),
-                        Some((i0, j0, i1, j1)) => (i0.min(i), j0.min(j), i1.max(i), j1.max(j)),
-                    });
-                }
-            }
-        }
+        self.for_each_set(|i, j| {
+            b = Some(match b {
+                None => (i, j, i, j),
+                Some((i0, j0, i1, j1)) => (i0.min(i), j0.min(j), i1.max(i), j1.max(j)),
+            });
+        });
         b
     }
 }
@@ -128,15 +228,11 @@ impl MapPlane<'_> {
     /// One point per occupied cell, at its centre (equation 10).
     pub fn for_each_sample(&self, mut f: impl FnMut(Vec3)) {
         let (e1, e2) = (linalg::column(&self.rotation, 0), linalg::column(&self.rotation, 1));
-        for j in 0..self.cells.height as usize {
-            for i in 0..self.cells.width as usize {
-                if self.cells.is_set(i, j) {
-                    let u = (self.cells.a0 as f32 + i as f32 + 0.5) * self.g_p;
-                    let v = (self.cells.b0 as f32 + j as f32 + 0.5) * self.g_p;
-                    f(linalg::add(self.centroid, linalg::add(linalg::scale(e1, u), linalg::scale(e2, v))));
-                }
-            }
-        }
+        self.cells.for_each_set(|i, j| {
+            let u = (self.cells.a0 as f32 + i as f32 + 0.5) * self.g_p;
+            let v = (self.cells.b0 as f32 + j as f32 + 0.5) * self.g_p;
+            f(linalg::add(self.centroid, linalg::add(linalg::scale(e1, u), linalg::scale(e2, v))));
+        });
     }
 }
 

@@ -8,7 +8,7 @@ use crate::fuse;
 use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
 use crate::gmm::{ROLE_OBJECT, ROLE_PLANE, ROLE_RESIDUAL};
 use crate::linalg::{self, Moments, Vec3};
-use crate::map::{CellBits, MapGmm, MapPlane, MapSq, Primitive};
+use crate::map::{CellBits, CellCoding, MapGmm, MapPlane, MapSq, Primitive};
 use crate::masks::{Instance, MaskSet};
 use crate::objects::{self, Object, SQ_ACCEPTED, SQ_NONE, SQ_REJECTED};
 use crate::params::Params;
@@ -788,6 +788,7 @@ impl<'s> Mapper<'s> {
                     b0: -half,
                     width: PLANE_GRID as u16,
                     height: PLANE_GRID as u16,
+                    coding: CellCoding::Bitmap,
                     bits: &p.cells,
                 },
             }));

@@ -10,18 +10,22 @@
 //! - scales and σ: 0.1 mm units, u16 — ±0.05 mm, up to 6.55 m;
 //! - shape exponents: u16 over [0.1, 1.9] — ±0.000014 (box-like surfaces, ε ≈ 0.1, are that sensitive);
 //!   scores and support ratios: u8 over [0, 1] — ±0.002;
-//! - λ2/λ0: u16 over [0, 1]; g_p: 0.1 mm units; plane cells: their occupied bounding box as a bitmap.
+//! - λ2/λ0: u16 over [0, 1]; g_p: 0.1 mm units; plane cells: their occupied bounding box, as a bitmap or as
+//!   run lengths (LEB128 varints, alternately unset and set), whichever is shorter (exact).
+//!
+//! Version 2 added the run-length coding of plane cells (a floor of 60 × 60 cells is about 120 bytes of runs
+//! instead of 450 of bitmap); version 1 maps are refused with [`WireError::WrongVersion`].
 
 use serde::{Deserialize, Serialize};
 
 use crate::linalg::{self, Mat3, Vec3};
-use crate::map::{CellBits, MapGmm, MapPlane, MapSq, Primitive};
+use crate::map::{push_run, CellBits, CellCoding, CellRuns, MapGmm, MapPlane, MapSq, Primitive};
 use crate::superquadric::{Superquadric, EPS_RANGE, MIN_SCALE};
 
 /// First two bytes of every map.
 pub const MAGIC: [u8; 2] = *b"M2";
 /// The format version this code writes and reads.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 
 /// Why a map could not be encoded or decoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -92,6 +96,8 @@ struct WirePlane<'a> {
     b0: i16,
     width: u16,
     height: u16,
+    /// 0: bitmap, 1: runs ([`CellCoding`]).
+    coding: u8,
     #[serde(borrow)]
     bits: &'a [u8],
 }
@@ -247,29 +253,35 @@ pub fn encode_streaming(
 }
 
 fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
-    // Crop the cells to their occupied box and repack the bits row by row.
+    // Crop the cells to their occupied box and code them both ways: a bitmap row by row, and run lengths
+    // (given up once they are as long as the bitmap); the shorter goes on the wire.
     let mut bits = [0u8; MAX_PLANE_BITS];
+    let mut runs = [0u8; MAX_PLANE_BITS];
     let (a0, b0, width, height) = match p.cells.occupied_box() {
         Some((i0, j0, i1, j1)) => {
             let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
-            if w * h > MAX_PLANE_BITS * 8 {
+            if w * h > MAX_PLANE_CELLS {
                 return Err(WireError::BadValue("plane cells"));
             }
-            for j in 0..h {
-                for i in 0..w {
-                    if p.cells.is_set(i0 + i, j0 + j) {
-                        let k = j * w + i;
-                        if let Some(b) = bits.get_mut(k / 8) {
-                            *b |= 1 << (k % 8);
-                        }
+            p.cells.for_each_set(|i, j| {
+                if (i0..=i1).contains(&i) && (j0..=j1).contains(&j) {
+                    let k = (j - j0) * w + (i - i0);
+                    if let Some(b) = bits.get_mut(k / 8) {
+                        *b |= 1 << (k % 8);
                     }
                 }
-            }
+            });
             (p.cells.a0 + i0 as i16, p.cells.b0 + j0 as i16, w as u16, h as u16)
         }
         None => (0, 0, 0, 0),
     };
-    let n_bytes = (width as usize * height as usize).div_ceil(8);
+    let cells = width as usize * height as usize;
+    let n_bytes = cells.div_ceil(8);
+    let n_runs = run_lengths(bits.get(..n_bytes).unwrap_or(&[]), cells, runs.get_mut(..n_bytes).unwrap_or(&mut []));
+    let (coding, coded) = match n_runs {
+        Some(n) if n < n_bytes => (1, runs.get(..n).unwrap_or(&[])),
+        _ => (0, bits.get(..n_bytes).unwrap_or(&[])),
+    };
     let wire = WirePlane {
         centroid: p.centroid.map(mm),
         rotation: quantise_rotation(&p.rotation),
@@ -282,9 +294,27 @@ fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
         b0,
         width,
         height,
-        bits: bits.get(..n_bytes).unwrap_or(&[]),
+        coding,
+        bits: coded,
     };
     postcard::to_slice(&wire, out).map(|s| s.len()).map_err(|_| WireError::BufferTooSmall)
+}
+
+/// The run lengths ([`CellCoding::Runs`]) of the first `cells` bits of `bits` into `out`: the bytes written, or
+/// `None` when they do not fit.
+fn run_lengths(bits: &[u8], cells: usize, out: &mut [u8]) -> Option<usize> {
+    let (mut len, mut run, mut set) = (0usize, 0u32, false);
+    for k in 0..cells {
+        let bit = bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1);
+        if bit != set {
+            if !push_run(out, &mut len, run) {
+                return None;
+            }
+            (run, set) = (0, bit);
+        }
+        run += 1;
+    }
+    push_run(out, &mut len, run).then_some(len)
 }
 
 fn write_sq(s: &MapSq, out: &mut [u8]) -> Result<usize, WireError> {
@@ -319,6 +349,8 @@ fn write_gmm(g: &MapGmm, out: &mut [u8]) -> Result<usize, WireError> {
 
 /// Largest cropped plane bitmap, bytes (the whole 80 × 80 grid).
 pub const MAX_PLANE_BITS: usize = crate::plane::PLANE_GRID_BYTES;
+/// Most cells of a plane on the wire (the whole grid).
+pub const MAX_PLANE_CELLS: usize = MAX_PLANE_BITS * 8;
 
 fn take<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<(T, &'a [u8]), WireError> {
     postcard::take_from_bytes(bytes).map_err(|e| match e {
@@ -328,7 +360,13 @@ fn take<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<(T, &'a [u8]), WireEr
 }
 
 fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
-    if w.bits.len() != (w.width as usize * w.height as usize).div_ceil(8) {
+    let cells = w.width as usize * w.height as usize;
+    let coding = match w.coding {
+        0 if w.bits.len() == cells.div_ceil(8) => CellCoding::Bitmap,
+        1 if runs_cover(w.bits, cells) => CellCoding::Runs,
+        _ => return Err(WireError::BadValue("plane cells")),
+    };
+    if cells > MAX_PLANE_CELLS {
         return Err(WireError::BadValue("plane cells"));
     }
     if w.g_p == 0 {
@@ -342,8 +380,24 @@ fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
         colour: w.colour,
         cluster: w.cluster,
         g_p: w.g_p as f32 / 10_000.0,
-        cells: CellBits { a0: w.a0, b0: w.b0, width: w.width, height: w.height, bits: w.bits },
+        cells: CellBits { a0: w.a0, b0: w.b0, width: w.width, height: w.height, coding, bits: w.bits },
     })
+}
+
+/// Whether `bytes` are well-formed run lengths covering exactly `cells` cells, each run but the first non-empty.
+fn runs_cover(bytes: &[u8], cells: usize) -> bool {
+    let mut runs = CellRuns::new(bytes);
+    let mut total = 0usize;
+    for (r, run) in runs.by_ref().enumerate() {
+        if run == 0 && r > 0 {
+            return false;
+        }
+        total += run as usize;
+        if total > cells {
+            return false;
+        }
+    }
+    runs.is_exhausted() && total == cells
 }
 
 fn sq_of(w: WireSq) -> Result<MapSq, WireError> {
@@ -445,4 +499,33 @@ pub fn decode<'a>(bytes: &'a [u8], mut f: impl FnMut(Primitive<'a>)) -> Result<H
     let body = checked_body(bytes)?;
     walk(body, None)?;
     walk(body, Some(&mut f))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_lengths_cover_their_cells_exactly() {
+        // Cells 0..12 with 2..5 and 9 set: runs 2, 3, 4, 1, 2.
+        let bits = [0b0001_1100u8, 0b0000_0010];
+        let mut out = [0u8; 8];
+        let n = run_lengths(&bits, 12, &mut out).unwrap();
+        assert_eq!(&out[..n], &[2, 3, 4, 1, 2]);
+        assert!(runs_cover(&out[..n], 12));
+        // A first set cell starts with an empty run; a long run takes two varint bytes.
+        let mut out = [0u8; 8];
+        let n = run_lengths(&[0xff; 40], 300, &mut out).unwrap();
+        assert_eq!(&out[..n], &[0, 0xac, 0x02]);
+        assert!(runs_cover(&out[..n], 300));
+        // Too little room: None.
+        assert_eq!(run_lengths(&bits, 12, &mut [0u8; 4]), None);
+        // Refused: short, long, an empty run after the first, an unterminated varint, trailing garbage.
+        assert!(!runs_cover(&[2, 3, 4, 1, 1], 12));
+        assert!(!runs_cover(&[2, 3, 4, 1, 3], 12));
+        assert!(!runs_cover(&[2, 0, 4, 1, 5], 12));
+        assert!(!runs_cover(&[0x8c], 12));
+        assert!(!runs_cover(&[12, 0x80, 0x80, 0x80, 0x01], 12));
+        assert!(runs_cover(&[12], 12));
+    }
 }

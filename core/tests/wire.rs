@@ -1,7 +1,7 @@
 //! The map wire format: round trips, golden bytes, quantisation error, and corrupted input.
 
 use m2smap_core::linalg::{self, Vec3};
-use m2smap_core::map::{CellBits, MapGmm, MapPlane, MapSq, Primitive};
+use m2smap_core::map::{CellBits, CellCoding, MapGmm, MapPlane, MapSq, Primitive};
 use m2smap_core::superquadric::Superquadric;
 use m2smap_core::wire::{self, WireError};
 
@@ -21,7 +21,7 @@ fn with_map<R>(f: impl FnOnce(&[Primitive<'_>]) -> R) -> R {
             colour: [140, 150, 130],
             cluster: 3,
             g_p: 0.05,
-            cells: CellBits { a0: -8, b0: -8, width: 16, height: 16, bits: &bits },
+            cells: CellBits { a0: -8, b0: -8, width: 16, height: 16, coding: CellCoding::Bitmap, bits: &bits },
         }),
         Primitive::Sq(MapSq {
             sq: Superquadric {
@@ -116,7 +116,7 @@ fn round_trip_is_identical_and_within_a_millimetre() {
 
 #[test]
 fn golden_bytes() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../fixtures/golden/wire_v1.hex");
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../fixtures/golden/wire_v2.hex");
     let hex: String = with_map(encode).iter().map(|b| format!("{b:02x}")).collect();
     if std::env::var("M2SMAP_BLESS").is_ok_and(|v| v == "1") {
         std::fs::write(path, format!("{hex}\n")).unwrap();
@@ -140,11 +140,16 @@ fn truncated_flipped_and_foreign_maps_are_errors() {
     }
     // A well-formed map of another version (valid checksum) is refused by version.
     let mut b = bytes.clone();
-    b[2] = 2;
+    b[2] = 3;
     let n = b.len() - 4;
     let crc = wire::crc32(&b[..n]).to_le_bytes();
     b[n..].copy_from_slice(&crc);
-    assert_eq!(wire::decode(&b, |_| {}).unwrap_err(), WireError::WrongVersion(2));
+    assert_eq!(wire::decode(&b, |_| {}).unwrap_err(), WireError::WrongVersion(3));
+    // The same map as version 1 wrote it (before run-length plane cells) is refused by version.
+    let v1 = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../fixtures/golden/wire_v1.hex")).unwrap();
+    let v1: Vec<u8> =
+        (0..v1.trim().len() / 2).map(|i| u8::from_str_radix(&v1[2 * i..2 * i + 2], 16).unwrap()).collect();
+    assert_eq!(wire::decode(&v1, |_| {}).unwrap_err(), WireError::WrongVersion(1));
     // Trailing bytes inside a valid checksum.
     let mut b = bytes[..bytes.len() - 4].to_vec();
     b.push(0);
@@ -214,4 +219,78 @@ fn crc32_has_the_standard_check_value() {
     assert_eq!(wire::crc32(b""), 0);
     let (a, b) = b"123456789".split_at(4);
     assert_eq!(!wire::crc32_update(wire::crc32_update(0xFFFF_FFFF, a), b), 0xCBF4_3926);
+}
+
+/// A plane whose cells are `set(i, j)` on a `w × h` grid, as the mapper hands it to the encoder (a bitmap).
+fn plane_map(w: usize, h: usize, set: impl Fn(usize, usize) -> bool) -> (Vec<u8>, Vec<(usize, usize)>, usize) {
+    let mut bits = vec![0u8; (w * h).div_ceil(8)];
+    let mut cells = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            if set(i, j) {
+                bits[(j * w + i) / 8] |= 1 << ((j * w + i) % 8);
+                cells.push((i, j));
+            }
+        }
+    }
+    let plane = Primitive::Plane(MapPlane {
+        centroid: [0.0, 0.3, 2.0],
+        rotation: linalg::IDENTITY,
+        sigmas: [0.5, 0.4, 0.004],
+        eigen_ratio: 0.001,
+        colour: [90, 90, 90],
+        cluster: 1,
+        g_p: 0.05,
+        cells: CellBits {
+            a0: -40,
+            b0: -40,
+            width: w as u16,
+            height: h as u16,
+            coding: CellCoding::Bitmap,
+            bits: &bits,
+        },
+    });
+    (encode(&[plane]), cells, bits.len())
+}
+
+/// The occupied cells (grid coordinates) and coding of the single plane of a map.
+fn decoded_cells(bytes: &[u8]) -> (Vec<(usize, usize)>, CellCoding) {
+    let mut out = (Vec::new(), CellCoding::Bitmap);
+    wire::decode(bytes, |p| {
+        if let Primitive::Plane(p) = p {
+            let (a0, b0) = ((p.cells.a0 + 40) as usize, (p.cells.b0 + 40) as usize);
+            p.cells.for_each_set(|i, j| {
+                assert!(p.cells.is_set(i, j), "for_each_set and is_set agree");
+                out.0.push((a0 + i, b0 + j));
+            });
+            out.1 = p.cells.coding;
+        }
+    })
+    .unwrap();
+    out
+}
+
+#[test]
+fn plane_cells_take_the_shorter_coding_and_round_trip_exactly() {
+    // A disc of radius 25 cells with a hole (an object standing on a floor): runs, several times smaller.
+    let floor = |i: usize, j: usize| {
+        let (x, y) = (i as f32 - 40.0, j as f32 - 38.0);
+        let r2 = x * x + y * y;
+        r2 <= 625.0 && !((-4.0..4.0).contains(&x) && (-6.0..3.0).contains(&y))
+    };
+    let (bytes, cells, bitmap_bytes) = plane_map(80, 80, floor);
+    let (got, coding) = decoded_cells(&bytes);
+    assert_eq!(coding, CellCoding::Runs);
+    assert_eq!(got, cells);
+    // The cropped 51 x 51 bitmap alone would be 326 bytes; the whole map is well below that.
+    assert!(bytes.len() < 220, "{} bytes for a disc (uncropped bitmap {bitmap_bytes})", bytes.len());
+    // A checkerboard: every run one cell long, the bitmap is shorter.
+    let (bytes, cells, _) = plane_map(20, 12, |i, j| (i + j) % 2 == 0);
+    let (got, coding) = decoded_cells(&bytes);
+    assert_eq!((coding, got), (CellCoding::Bitmap, cells));
+    // A single occupied cell, a full row, and an empty plane.
+    for set in [|i: usize, j: usize| i == 7 && j == 9, |_: usize, j: usize| j == 3, |_: usize, _: usize| false] {
+        let (bytes, cells, _) = plane_map(16, 16, set);
+        assert_eq!(decoded_cells(&bytes).0, cells);
+    }
 }

@@ -7,7 +7,7 @@
 //! Units: metres in the map's frame (the camera frame of the mapped frame), pixels on the image.
 
 use m2smap_core::linalg::{self, Mat3, Vec3};
-use m2smap_core::map::{CellBits, Primitive};
+use m2smap_core::map::{CellBits, CellCoding, Primitive};
 use m2smap_core::superquadric::Superquadric;
 use m2smap_core::Intrinsics;
 
@@ -124,14 +124,20 @@ impl Shape {
                 radii: g.sigmas.map(|s| (GAUSSIAN_EXTENT * s).max(MIN_RADIUS)),
             },
             Primitive::Plane(p) => {
-                let bytes = (p.cells.width as usize * p.cells.height as usize).div_ceil(8);
+                // Expanded to a bitmap (whichever coding the map used) for constant-time lookups.
+                let w = p.cells.width as usize;
+                let mut bits = vec![0u8; (w * p.cells.height as usize).div_ceil(8)];
+                p.cells.for_each_set(|i, j| {
+                    let k = j * w + i;
+                    bits[k / 8] |= 1 << (k % 8);
+                });
                 Shape::Cells {
                     centroid: p.centroid,
                     rotation: p.rotation,
                     g_p: p.g_p,
                     origin: (p.cells.a0, p.cells.b0),
                     size: (p.cells.width, p.cells.height),
-                    bits: p.cells.bits.iter().copied().take(bytes).collect(),
+                    bits,
                 }
             }
         }
@@ -206,7 +212,14 @@ impl Shape {
                 if i < 0.0 || j < 0.0 || i >= size.0 as f32 || j >= size.1 as f32 {
                     return None;
                 }
-                let cells = CellBits { a0: origin.0, b0: origin.1, width: size.0, height: size.1, bits };
+                let cells = CellBits {
+                    a0: origin.0,
+                    b0: origin.1,
+                    width: size.0,
+                    height: size.1,
+                    coding: CellCoding::Bitmap,
+                    bits,
+                };
                 cells.is_set(i as usize, j as usize).then_some((t, n))
             }
         }
