@@ -78,7 +78,7 @@ pub struct Superquadric {
 #[inline]
 fn term_log2(x: f32, a: f32) -> f32 {
     let q = (x / a) * (x / a);
-    fastmath::log2(q.min(1e4))
+    fastmath::log2_select(q.min(1e4))
 }
 
 /// One term (x/a)^(2/ε) of F, from [`term_log2`].
@@ -107,7 +107,7 @@ struct Powers {
     log2_f: f32,
 }
 
-/// Points per batch of [`Superquadric::powers_lanes`]: two SSE or one AVX register of f32 on a host, so the
+/// Points per batch of [`Superquadric::powers_n`]: two SSE or one AVX register of f32 on a host, so the
 /// compiler vectorises the lane loops (the same IEEE operations as the scalar path, so the same bits on every
 /// target; the Cortex-M7 runs them one by one).
 const LANES: usize = 4;
@@ -187,30 +187,20 @@ impl Superquadric {
     /// The powers of F at local coordinates `l` (five logarithms and five exponentials).
     #[inline]
     fn powers(&self, l: Vec3) -> Powers {
-        let [a1, a2, a3] = self.scales;
-        let [e1, e2] = self.eps;
-        let log2_q = [term_log2(l[0], a1), term_log2(l[1], a2), term_log2(l[2], a3)];
-        let t = [term_from(log2_q[0], e2), term_from(log2_q[1], e2), term_from(log2_q[2], e1)];
-        let log2_s = fastmath::log2(t[0] + t[1]);
-        let xy = fastmath::pow_log2(log2_s, e2 / e1);
-        let log2_f = fastmath::log2(xy + t[2]);
-        Powers { t, xy, g: fastmath::pow_log2(log2_f, 0.5 * e1), log2_q, log2_s, log2_f }
+        let [p] = self.powers_n(&[l]);
+        p
     }
 
-    /// [`Superquadric::powers`] at each of [`LANES`] local coordinates, lane by lane without branches so the
-    /// lane loops vectorise: the same bits as `powers` at each.
+    /// [`Superquadric::powers`] at each of `N` local coordinates, lane by lane without branches
+    /// ([`fastmath::log2_select`]) so that for N = [`LANES`] the lane loops vectorise; the same bits for every N.
     #[inline]
-    fn powers_lanes(&self, l: &[Vec3; LANES]) -> [Powers; LANES] {
+    fn powers_n<const N: usize>(&self, l: &[Vec3; N]) -> [Powers; N] {
         let [a1, a2, a3] = self.scales;
         let [e1, e2] = self.eps;
         let (y2, y1, yxy, yg) = (1.0 / e2, 1.0 / e1, e2 / e1, 0.5 * e1);
-        let log2_term = |x: f32, a: f32| {
-            let q = (x / a) * (x / a);
-            fastmath::log2_select(q.min(1e4))
-        };
-        let mut out = [Powers::default(); LANES];
+        let mut out = [Powers::default(); N];
         for (o, l) in out.iter_mut().zip(l) {
-            let log2_q = [log2_term(l[0], a1), log2_term(l[1], a2), log2_term(l[2], a3)];
+            let log2_q = [term_log2(l[0], a1), term_log2(l[1], a2), term_log2(l[2], a3)];
             let t = [
                 fastmath::pow_log2_select(log2_q[0], y2),
                 fastmath::pow_log2_select(log2_q[1], y2),
@@ -224,12 +214,12 @@ impl Superquadric {
         out
     }
 
-    /// [`Superquadric::powers_reusing`] at each of [`LANES`] local coordinates `l`, with `base`'s powers `b` there:
-    /// what `self` shares with `base` is decided once for all lanes (a term whose half-axis and ε are the same
-    /// is copied; S and its power only when the first two terms and both ε are), the rest is taken lane by lane
-    /// as in [`Superquadric::powers_lanes`]. The same bits as `powers` at each.
+    /// [`Superquadric::powers_n`] of `self` at `N` local coordinates `l`, reusing `base`'s powers `b` there: what
+    /// `self` shares with `base` is decided once for all lanes (a term whose half-axis and ε are the same is
+    /// copied; S and its power only when the first two terms and both ε are), the rest is taken lane by lane.
+    /// The same bits as `powers` at each (the Jacobian perturbs one shape parameter at a time).
     #[inline]
-    fn powers_lanes_reusing(&self, base: &Superquadric, l: &[Vec3; LANES], b: &[Powers; LANES]) -> [Powers; LANES] {
+    fn powers_reusing_n<const N: usize>(&self, base: &Superquadric, l: &[Vec3; N], b: &[Powers; N]) -> [Powers; N] {
         let differs = |x: f32, y: f32| x.to_bits() != y.to_bits();
         let [a1, a2, a3] = self.scales;
         let [e1, e2] = self.eps;
@@ -239,10 +229,7 @@ impl Superquadric {
         let new_s = new_t[0] || new_t[1];
         let new_xy = new_s || new_e1 || new_e2;
         let (y2, y1, yxy, yg) = (1.0 / e2, 1.0 / e1, e2 / e1, 0.5 * e1);
-        let log2_term = |x: f32, a: f32| {
-            let q = (x / a) * (x / a);
-            fastmath::log2_select(q.min(1e4))
-        };
+        let log2_term = term_log2;
         let mut out = *b;
         // Each term by hand (constant indices keep the lane loops vectorisable).
         if new_q[0] {
@@ -288,41 +275,18 @@ impl Superquadric {
             for (d, &p) in l.iter_mut().zip(chunk) {
                 *d = self.local(p);
             }
-            for (d, pw) in o.iter_mut().zip(self.powers_lanes(&l)) {
+            for (d, pw) in o.iter_mut().zip(self.powers_n(&l)) {
                 *d = pw;
             }
         }
     }
 
-    /// [`Superquadric::powers`] at `l`, reusing `base`'s powers and logarithms `b` at the same `l` wherever the
-    /// inputs of one are bit-identical (the Jacobian perturbs one shape parameter at a time).
+    /// [`Superquadric::powers`] at `l`, reusing `base`'s powers and logarithms `b` at the same `l`
+    /// ([`Superquadric::powers_reusing_n`]).
     #[inline]
     fn powers_reusing(&self, base: &Superquadric, l: Vec3, b: &Powers) -> Powers {
-        let same = |x: &[f32], y: &[f32]| x.iter().map(|v| v.to_bits()).eq(y.iter().map(|v| v.to_bits()));
-        let [a1, a2, a3] = self.scales;
-        let [e1, e2] = self.eps;
-        let (b1, b2, b3) = (base.scales[0], base.scales[1], base.scales[2]);
-        let (be1, be2) = (base.eps[0], base.eps[1]);
-        // A term's base depends on its half-axis only, its power on the half-axis and ε.
-        let log2_q = [
-            if a1.to_bits() == b1.to_bits() { b.log2_q[0] } else { term_log2(l[0], a1) },
-            if a2.to_bits() == b2.to_bits() { b.log2_q[1] } else { term_log2(l[1], a2) },
-            if a3.to_bits() == b3.to_bits() { b.log2_q[2] } else { term_log2(l[2], a3) },
-        ];
-        let t = [
-            if same(&[a1, e2], &[b1, be2]) { b.t[0] } else { term_from(log2_q[0], e2) },
-            if same(&[a2, e2], &[b2, be2]) { b.t[1] } else { term_from(log2_q[1], e2) },
-            if same(&[a3, e1], &[b3, be1]) { b.t[2] } else { term_from(log2_q[2], e1) },
-        ];
-        let log2_s = if same(&t[..2], &b.t[..2]) { b.log2_s } else { fastmath::log2(t[0] + t[1]) };
-        let xy = if same(&[t[0], t[1], e1, e2], &[b.t[0], b.t[1], be1, be2]) {
-            b.xy
-        } else {
-            fastmath::pow_log2(log2_s, e2 / e1)
-        };
-        let log2_f = if same(&[xy, t[2]], &[b.xy, b.t[2]]) { b.log2_f } else { fastmath::log2(xy + t[2]) };
-        let g = if same(&[xy, t[2], e1], &[b.xy, b.t[2], be1]) { b.g } else { fastmath::pow_log2(log2_f, 0.5 * e1) };
-        Powers { t, xy, g, log2_q, log2_s, log2_f }
+        let [p] = self.powers_reusing_n(base, &[l], &[*b]);
+        p
     }
 
     /// [`Superquadric::distance_at`] from the [`Superquadric::powers`] `pw` at `l`.
@@ -787,7 +751,7 @@ fn cost_keeping(sq: &Superquadric, prob: &Problem<'_>, kept: &mut [Powers]) -> f
         for (d, &p) in ls.iter_mut().zip(chunk) {
             *d = sq.local(p);
         }
-        for (l, pw) in ls.iter().zip(sq.powers_lanes(&ls)).take(chunk.len()) {
+        for (l, pw) in ls.iter().zip(sq.powers_n(&ls)).take(chunk.len()) {
             if let Some(k) = kept.next() {
                 *k = pw;
             }
@@ -997,7 +961,7 @@ impl Perturbed {
 impl Perturbed {
     /// [`Perturbed::distance_row`] at each of [`LANES`] local coordinates `l` (powers `pw` of `base` there), the
     /// first `n` of them: the forward differences of the shape columns take each perturbed model's powers at
-    /// all lanes at once ([`Superquadric::powers_lanes_reusing`]). The same bits as `distance_row` at each.
+    /// all lanes at once ([`Superquadric::powers_reusing_n`]). The same bits as `distance_row` at each.
     #[inline]
     fn distance_rows(&self, l: &[Vec3; LANES], pw: &[Powers; LANES], n: usize) -> [(f32, [f32; SQ_PARAMS]); LANES] {
         let mut out = [(0.0f32, [0.0f32; SQ_PARAMS]); LANES];
@@ -1014,7 +978,7 @@ impl Perturbed {
             *n = normal;
         }
         for (j, (m, h)) in self.shape.iter().zip(&self.steps).take(self.columns).enumerate() {
-            let moved = m.powers_lanes_reusing(&self.base, l, pw);
+            let moved = m.powers_reusing_n(&self.base, l, pw);
             for ((o, l), mp) in out.iter_mut().zip(l).zip(&moved).take(n) {
                 if let Some(d) = o.1.get_mut(j) {
                     *d = (m.distance_from(*l, mp).0 - o.0) / h;
@@ -1580,8 +1544,22 @@ mod gradient_tests {
         bits(a).eq(bits(b))
     }
 
-    /// The lane forms of the powers (plain and reusing a base model's) give the same bits as the scalar
-    /// [`Superquadric::powers`], on, inside, far outside the shape, on its axes and at its centre.
+    /// The powers straight from [`fastmath::pow`] and [`fastmath::log2`] (the branchy scalar forms).
+    fn reference_powers(sq: &Superquadric, l: Vec3) -> Powers {
+        let [a1, a2, a3] = sq.scales;
+        let [e1, e2] = sq.eps;
+        let q = |x: f32, a: f32| ((x / a) * (x / a)).min(1e4);
+        let (qx, qy, qz) = (q(l[0], a1), q(l[1], a2), q(l[2], a3));
+        let t = [fastmath::pow(qx, 1.0 / e2), fastmath::pow(qy, 1.0 / e2), fastmath::pow(qz, 1.0 / e1)];
+        let xy = fastmath::pow(t[0] + t[1], e2 / e1);
+        let g = fastmath::pow(xy + t[2], 0.5 * e1);
+        let log2_q = [fastmath::log2(qx), fastmath::log2(qy), fastmath::log2(qz)];
+        Powers { t, xy, g, log2_q, log2_s: fastmath::log2(t[0] + t[1]), log2_f: fastmath::log2(xy + t[2]) }
+    }
+
+    /// The lane forms of the powers (plain, and reusing a base model's for each perturbed shape parameter) give
+    /// the same bits as the scalar `pow` and `log2`, on, inside, far outside the shape, on its axes and at its
+    /// centre, in a batch of [`LANES`] and alone.
     #[test]
     fn lane_powers_are_the_scalar_bits() {
         let shapes =
@@ -1602,9 +1580,10 @@ mod gradient_tests {
             for chunk in points.chunks(LANES) {
                 let mut l = [[0.0f32; 3]; LANES];
                 l.iter_mut().zip(chunk).for_each(|(d, p)| *d = *p);
-                let lanes = base.powers_lanes(&l);
+                let lanes = base.powers_n(&l);
                 for (lane, p) in lanes.iter().zip(&l) {
-                    assert!(same_powers(lane, &base.powers(*p)), "{scales:?} {eps:?} at {p:?}");
+                    assert!(same_powers(lane, &reference_powers(&base, *p)), "{scales:?} {eps:?} at {p:?}");
+                    assert!(same_powers(lane, &base.powers(*p)), "alone: {scales:?} {eps:?} at {p:?}");
                 }
                 for j in 0..5 {
                     let mut moved = base;
@@ -1613,11 +1592,9 @@ mod gradient_tests {
                     } else {
                         moved.eps[j - 3] -= 2e-3;
                     }
-                    let reused = moved.powers_lanes_reusing(&base, &l, &lanes);
+                    let reused = moved.powers_reusing_n(&base, &l, &lanes);
                     for (lane, p) in reused.iter().zip(&l) {
-                        assert!(same_powers(lane, &moved.powers(*p)), "moved {j}: {scales:?} {eps:?} at {p:?}");
-                        let scalar = moved.powers_reusing(&base, *p, &base.powers(*p));
-                        assert!(same_powers(lane, &scalar), "reusing {j} at {p:?}");
+                        assert!(same_powers(lane, &reference_powers(&moved, *p)), "moved {j}: {eps:?} at {p:?}");
                     }
                 }
             }
