@@ -1360,7 +1360,7 @@ pub struct FrontView {
 /// The camera-facing samples of `sq` (grid about max(1 cm, largest half-axis / 3) apart) judged against the
 /// frame ([`FrontView`]; a pixel without depth is unknown: sensors drop the depth along object edges, where the
 /// object may well be). For every k-th free sample (k from the grid's size and `out`'s length) a probe goes on
-/// its ray 1 cm behind it (inside the shape) but still in front of the free-space limit.
+/// its ray inside the shape but still in front of the free-space limit ([`free_probe_depth`]).
 pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &mut [Vec3]) -> FrontView {
     enum Seen {
         Outside,
@@ -1413,7 +1413,7 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
         Seen::Free(u, v, until) => {
             if view.free % stride == 0 {
                 if let Some(slot) = slots.next() {
-                    *slot = frame.intrinsics.unproject(u, v, (p[2] + 0.01).min(until));
+                    *slot = frame.intrinsics.unproject(u, v, free_probe_depth(sq, p, until));
                     view.written += 1;
                 }
             }
@@ -1423,6 +1423,27 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
     });
     view
 }
+
+/// Depth (metres) of the probe for a camera-facing sample `p` of `sq` in observed free space, whose ray the
+/// camera saw free up to depth `until`: the middle of the shape's chord along that ray (found by bisection; the
+/// shape is convex, so the ray is inside from `p` to one exit), at least 1 cm behind `p` and never beyond
+/// `until`. A probe there pushes the whole chord off the free ray, not just the first centimetre of it.
+fn free_probe_depth(sq: &Superquadric, p: Vec3, until: f32) -> f32 {
+    let ray = linalg::normalize_or(p, [0.0, 0.0, 1.0]);
+    let (mut inside, mut outside) = (0.0f32, 2.0 * linalg::norm(sq.scales));
+    for _ in 0..CHORD_STEPS {
+        let mid = 0.5 * (inside + outside);
+        if sq.implicit(sq.local(linalg::add(p, linalg::scale(ray, mid)))) < 1.0 {
+            inside = mid;
+        } else {
+            outside = mid;
+        }
+    }
+    (p[2] + (0.5 * inside * ray[2]).max(0.01)).min(until)
+}
+
+/// Bisection steps of [`free_probe_depth`] (the chord to 1/1024 of the shape's diagonal).
+const CHORD_STEPS: usize = 10;
 
 /// Whether `sq` stays within the extent of its support `points` (camera frame): the LM's extent constraint
 /// (see the module docs, with the hidden-depth prior) with a looser margin of 3 cm + 15 % of the half-axis.
