@@ -628,13 +628,13 @@ impl<'s> Mapper<'s> {
                 .and_then(|t| superquadric::refine(points, &to_camera(&t.sq), &evidence, &params))
                 .filter(|f| f.accepted);
             state = SQ_REJECTED;
-            // An object with no track that was refused in the previous frame skips its cold search on all but
-            // every `REFUSAL_RETRY_FRAMES`-th frame (see `track::Refusal`): it keeps its Gaussians meanwhile.
-            let untracked = own.is_none();
-            skipped = warm.is_none() && untracked && self.tracker.skips_search(track_centre, object.class, &params);
+            // An object whose cold search was refused in the previous frame (and whose track, if it has one,
+            // gave no acceptable warm start) skips its cold search on all but every `REFUSAL_RETRY_FRAMES`-th
+            // frame (see `track::Refusal`): it keeps its Gaussians meanwhile, or its track's held state.
+            skipped = warm.is_none() && self.tracker.skips_search(track_centre, object.class, &params);
             let fit =
                 if skipped { None } else { warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params)) };
-            if untracked && !skipped {
+            if !skipped {
                 if fit.is_some_and(|f| f.accepted) {
                     self.tracker.forget_refusal(track_centre, object.class, &params);
                 } else {
