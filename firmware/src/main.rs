@@ -214,6 +214,20 @@ fn log_frame(
         "frame {=usize} instructions total {=u64} voxels {=u64} supervoxels {=u64} gaussians {=u64} annotate {=u64} separate {=u64} superquadrics {=u64} encode {=u64}",
         i, ins(0, 7), ins(0, 1), ins(1, 2), ins(2, 3), ins(3, 4), ins(4, 5), ins(5, 6), ins(6, 7)
     );
+    // Per sampled point (the pixels that pass the range filter and the 15 % sample): the cost of the passes over
+    // them, comparable across frames and datasets of different sizes.
+    let points = u64::from(report.points.max(1));
+    defmt::println!(
+        "frame {=usize} instructions per point total {=u64} voxels {=u64} supervoxels {=u64} gaussians {=u64} annotate {=u64} separate {=u64} ({=u32} points)",
+        i,
+        ins(0, 7) / points,
+        ins(0, 1) / points,
+        ins(1, 2) / points,
+        ins(2, 3) / points,
+        ins(3, 4) / points,
+        ins(4, 5) / points,
+        report.points
+    );
     defmt::println!(
         "frame {=usize} gaussians {=u32} planes {=u32} sqs {=u32} gmms {=u32} overflow_events {=u32}",
         i,
