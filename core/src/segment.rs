@@ -33,6 +33,9 @@ const GRID_COLUMNS: u16 = 160;
 /// Least (n_a − n_b)·d̂ of a convex boundary (d̂ the unit vector from b's point to a's): below it a boundary is
 /// too faint to tell from noise and counts as concave unless nearly flat.
 const CONVEX_MIN: f32 = 0.2;
+/// Largest difference of a colour channel (0–255) between the mean colours of two cells that still counts as one
+/// surface across a nearly flat, slightly concave boundary.
+const COLOUR_STEP: i32 = 48;
 /// Most components large enough to be an object that one segmentation considers.
 const MAX_CANDIDATES: usize = 96;
 /// A component is flat when its smallest standard deviation is at most this share of the middle one.
@@ -82,10 +85,16 @@ impl<'f> Grid<'f> {
     /// Writes each cell's depth into `depth` (raw units, 0 = none): the mean of the valid depths of its block
     /// within the jump tolerance of its centre pixel's (a cell on a depth edge keeps the centre's surface; the
     /// mean of 16 pixels has a quarter of their noise, so the normals are steady on 4-pixel cells).
-    fn fill(frame: &Frame<'_>, params: &Params, (step, cols, rows): (usize, usize, usize), depth: &mut [u16]) {
+    fn fill(
+        frame: &Frame<'_>,
+        params: &Params,
+        (step, cols, rows): (usize, usize, usize),
+        depth: &mut [u16],
+        colours: &mut [u16],
+    ) {
         let (w, h) = (frame.width as usize, frame.height as usize);
         let (lo, hi) = frame.raw_range(params);
-        for (i, d) in depth.iter_mut().enumerate().take(cols * rows) {
+        for (i, (d, rgb)) in depth.iter_mut().zip(colours.chunks_exact_mut(2)).enumerate().take(cols * rows) {
             let (cx, cy) = (i % cols.max(1), i / cols.max(1));
             let (u0, v0) = (cx * step, cy * step);
             let (uc, vc) = ((u0 + step / 2).min(w - 1), (v0 + step / 2).min(h - 1));
@@ -106,6 +115,25 @@ impl<'f> Grid<'f> {
                 }
             }
             *d = (sum / n.max(1)) as u16;
+            // The colour of the 2 × 2 pixels about the centre (a quarter of the sensor's colour noise).
+            let mut colour = [0u32; 3];
+            for (x, y) in [
+                (uc.saturating_sub(1), vc.saturating_sub(1)),
+                (uc, vc.saturating_sub(1)),
+                (uc.saturating_sub(1), vc),
+                (uc, vc),
+            ] {
+                for (acc, &c) in
+                    colour.iter_mut().zip(frame.colour.get(3 * (y * w + x)..3 * (y * w + x) + 3).unwrap_or(&[]))
+                {
+                    *acc += c as u32;
+                }
+            }
+            let [r, g, b] = colour.map(|c| (c / 4) as u16);
+            if let [lo_half, hi_half] = rgb {
+                *lo_half = r | (g << 8);
+                *hi_half = b;
+            }
         }
     }
 
@@ -201,13 +229,22 @@ pub fn segment(
     // 1. Components on a grid of cells over the depth image (an organized cloud: neighbours are known
     // without a search, and the cells are as fine at 0.5 m as at 4 m): neighbouring cells join when no depth
     // jump separates them and their boundary is locally convex or nearly flat (LCCP).
-    // `ids` holds the parents (n), the cells' depths (n) and their quantised normals (3n) until the masks.
-    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 5));
+    // `ids` holds the parents (n), the cells' depths (n), their quantised normals (3n) and mean colours (2n)
+    // until the masks.
+    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 7));
     let n = layout.1 * layout.2;
     let (parents, rest) = ids.split_at_mut(n.min(ids.len()));
     let (depth, rest) = rest.split_at_mut(n.min(rest.len()));
-    let normals = rest.get_mut(..3 * n).unwrap_or(&mut []);
-    Grid::fill(frame, params, layout, depth);
+    let (normals, rest) = rest.split_at_mut((3 * n).min(rest.len()));
+    let colours = rest.get_mut(..2 * n).unwrap_or(&mut []);
+    Grid::fill(frame, params, layout, depth, colours);
+    let colours = &*colours;
+    let colour_of = |i: usize| -> [i32; 3] {
+        match colours.get(2 * i..2 * i + 2) {
+            Some(&[rg, b]) => [(rg & 0xff) as i32, (rg >> 8) as i32, b as i32],
+            _ => [0; 3],
+        }
+    };
     let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth, normals: &[] };
     for (i, q) in normals.chunks_exact_mut(3).enumerate() {
         let normal = grid.surfel(i % grid.cols.max(1), i / grid.cols.max(1)).map_or([0.0; 3], |(_, nrm)| nrm);
@@ -230,8 +267,15 @@ pub fn segment(
                 let Some(q) = grid.point_at(bx, by).filter(|q| libm::fabsf(q[2] - pa[2]) <= jump) else { continue };
                 let Some((pb, nb)) = grid.cached_normal(bx, by, q) else { continue };
                 let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
-                let convex = linalg::dot(linalg::sub(na, nb), towards) >= CONVEX_MIN;
-                if convex || linalg::dot(na, nb) >= cos_flat {
+                let bend = linalg::dot(linalg::sub(na, nb), towards);
+                let convex = bend >= CONVEX_MIN;
+                // A nearly flat boundary that bends inwards between cells of different colour is a contact (a
+                // ball on the floor, a can against a crate: the surfaces meet tangentially, so the concave
+                // crease is too faint for the normals), not one surface.
+                let (ca, cb) = (colour_of(grid.index(cx, cy)), colour_of(grid.index(bx, by)));
+                let contrast = ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0);
+                let contact = bend < 0.0 && contrast > COLOUR_STEP;
+                if convex || (linalg::dot(na, nb) >= cos_flat && !contact) {
                     union_find::union(parents, grid.index(cx, cy), grid.index(bx, by));
                 }
             }
