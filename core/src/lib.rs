@@ -29,7 +29,8 @@
 //!    [`objects`]: object support sets and the residual set (§IV-C).
 //! 6. [`superquadric`]: object superquadrics by Levenberg–Marquardt (§V-A); [`track`]: association,
 //!    equivalence alignment and smoothing (§V-B).
-//! 7. [`map`]: the primitives and their reconstruction samples (§V-C); [`wire`]: the postcard wire format.
+//! 7. [`map`]: the primitives and their reconstruction samples (§V-C); [`wire`]: the postcard wire format, with
+//!    [`cells`] coding plane cells as row edges.
 //!
 //! [`segment`] makes instance masks from depth alone for datasets without them; [`snapshot`] carries the tracks
 //! across a reset; [`mapper`] runs the stages over the borrowed pools.
@@ -42,6 +43,7 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod annotate;
+pub mod cells;
 pub mod error;
 pub mod fastmath;
 pub mod frame;

@@ -12,6 +12,8 @@ pub enum CellCoding {
     /// Run lengths over the cells in index order, alternately unset and set (starting with unset, which may
     /// be an empty run), each an unsigned LEB128 varint; together they cover every cell ([`CellRuns`]).
     Runs,
+    /// Each row's transitions coded against the row above in a bit stream ([`crate::cells`]).
+    Edges,
 }
 
 /// The occupied plane cells: `width × height` cells from cell (a0, b0), row-major, coded as [`CellCoding`] says.
@@ -93,6 +95,7 @@ impl CellBits<'_> {
                     }
                 }
             }
+            CellCoding::Edges => crate::cells::for_each_set(self.bits, self.width as usize, self.height as usize, f),
             CellCoding::Runs => {
                 let mut k = 0usize;
                 for (r, run) in CellRuns::new(self.bits).enumerate() {
@@ -116,6 +119,11 @@ impl CellBits<'_> {
         let k = j * self.width as usize + i;
         match self.coding {
             CellCoding::Bitmap => self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1),
+            CellCoding::Edges => {
+                let mut hit = false;
+                crate::cells::for_each_set(self.bits, self.width as usize, j + 1, |a, b| hit |= a == i && b == j);
+                hit
+            }
             CellCoding::Runs => {
                 let mut start = 0usize;
                 for (r, run) in CellRuns::new(self.bits).enumerate() {

@@ -10,11 +10,12 @@
 //! - scales and σ: 0.1 mm units, u16 — ±0.05 mm, up to 6.55 m;
 //! - shape exponents: u16 over [0.1, 1.9] — ±0.000014 (box-like surfaces, ε ≈ 0.1, are that sensitive);
 //!   scores and support ratios: u8 over [0, 1] — ±0.002;
-//! - λ2/λ0: u16 over [0, 1]; g_p: 0.1 mm units; plane cells: their occupied bounding box, as a bitmap or as
-//!   run lengths (LEB128 varints, alternately unset and set), whichever is shorter (exact).
+//! - λ2/λ0: u16 over [0, 1]; g_p: 0.1 mm units; plane cells: their occupied bounding box, as a bitmap, as
+//!   run lengths (LEB128 varints, alternately unset and set) or as row edges coded against the row above
+//!   ([`crate::cells`]), whichever is shortest (exact).
 //!
-//! Version 2 added the run-length coding of plane cells (a floor of 60 × 60 cells is about 120 bytes of runs
-//! instead of 450 of bitmap); version 1 maps are refused with [`WireError::WrongVersion`].
+//! Version 2 added the run-length and edge codings of plane cells (the cabinet's floor is about 90 bytes of
+//! edges instead of 180 of runs and 430 of bitmap); version 1 maps are refused with [`WireError::WrongVersion`].
 
 use serde::{Deserialize, Serialize};
 
@@ -96,7 +97,7 @@ struct WirePlane<'a> {
     b0: i16,
     width: u16,
     height: u16,
-    /// 0: bitmap, 1: runs ([`CellCoding`]).
+    /// 0: bitmap, 1: runs, 2: edges ([`CellCoding`]).
     coding: u8,
     #[serde(borrow)]
     bits: &'a [u8],
@@ -277,10 +278,16 @@ fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
     };
     let cells = width as usize * height as usize;
     let n_bytes = cells.div_ceil(8);
-    let n_runs = run_lengths(bits.get(..n_bytes).unwrap_or(&[]), cells, runs.get_mut(..n_bytes).unwrap_or(&mut []));
-    let (coding, coded) = match n_runs {
-        Some(n) if n < n_bytes => (1, runs.get(..n).unwrap_or(&[])),
-        _ => (0, bits.get(..n_bytes).unwrap_or(&[])),
+    let bitmap = bits.get(..n_bytes).unwrap_or(&[]);
+    let n_runs = run_lengths(bitmap, cells, runs.get_mut(..n_bytes).unwrap_or(&mut []));
+    let mut edges = [0u8; MAX_PLANE_BITS];
+    let limit = n_runs.unwrap_or(n_bytes).min(n_bytes);
+    let n_edges =
+        crate::cells::encode(bitmap, width as usize, height as usize, edges.get_mut(..limit).unwrap_or(&mut []));
+    let (coding, coded) = match (n_edges, n_runs) {
+        (Some(n), _) if n < limit => (2, edges.get(..n).unwrap_or(&[])),
+        (_, Some(n)) if n < n_bytes => (1, runs.get(..n).unwrap_or(&[])),
+        _ => (0, bitmap),
     };
     let wire = WirePlane {
         centroid: p.centroid.map(mm),
@@ -364,6 +371,9 @@ fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
     let coding = match w.coding {
         0 if w.bits.len() == cells.div_ceil(8) => CellCoding::Bitmap,
         1 if runs_cover(w.bits, cells) => CellCoding::Runs,
+        2 if cells <= MAX_PLANE_CELLS && crate::cells::covers(w.bits, w.width as usize, w.height as usize) => {
+            CellCoding::Edges
+        }
         _ => return Err(WireError::BadValue("plane cells")),
     };
     if cells > MAX_PLANE_CELLS {

@@ -280,10 +280,13 @@ fn plane_cells_take_the_shorter_coding_and_round_trip_exactly() {
     };
     let (bytes, cells, bitmap_bytes) = plane_map(80, 80, floor);
     let (got, coding) = decoded_cells(&bytes);
-    assert_eq!(coding, CellCoding::Runs);
+    assert_eq!(coding, CellCoding::Edges);
     assert_eq!(got, cells);
-    // The cropped 51 x 51 bitmap alone would be 326 bytes; the whole map is well below that.
-    assert!(bytes.len() < 220, "{} bytes for a disc (uncropped bitmap {bitmap_bytes})", bytes.len());
+    // The cropped 51 x 51 bitmap alone would be 326 bytes, its runs about 110; the whole map is below 100.
+    assert!(bytes.len() < 100, "{} bytes for a disc (uncropped bitmap {bitmap_bytes})", bytes.len());
+    // A band of 5 cells moving 9 cells per row: every row explicit as edges (22 bits), 2 bytes as runs.
+    let (bytes, cells, _) = plane_map(80, 8, |i, j| (9 * j..9 * j + 5).contains(&i));
+    assert_eq!(decoded_cells(&bytes), (cells, CellCoding::Runs));
     // A checkerboard: every run one cell long, the bitmap is shorter.
     let (bytes, cells, _) = plane_map(20, 12, |i, j| (i + j) % 2 == 0);
     let (got, coding) = decoded_cells(&bytes);
