@@ -281,14 +281,6 @@ impl Superquadric {
         }
     }
 
-    /// [`Superquadric::powers`] at `l`, reusing `base`'s powers and logarithms `b` at the same `l`
-    /// ([`Superquadric::powers_reusing_n`]).
-    #[inline]
-    fn powers_reusing(&self, base: &Superquadric, l: Vec3, b: &Powers) -> Powers {
-        let [p] = self.powers_reusing_n(base, &[l], &[*b]);
-        p
-    }
-
     /// [`Superquadric::distance_at`] from the [`Superquadric::powers`] `pw` at `l`.
     #[inline]
     fn distance_from(&self, l: Vec3, pw: &Powers) -> (f32, Vec3) {
@@ -920,76 +912,73 @@ struct Perturbed {
 }
 
 impl Perturbed {
-    /// The signed distance at local coordinates `l` (powers `pw` of `base` there) and its Jacobian row, to first
-    /// order with the distance's gradient taken as k·∇G (see [`Superquadric::distance_parts`]): analytic for the
-    /// shape ([`Superquadric::shape_gradient`]) and the pose, ∂d/∂t = −R·n, ∂d/∂r = n × p̃.
+    /// The signed distance at local coordinates `l` (powers `pw` of `base` there) and its Jacobian row
+    /// ([`Perturbed::distance_rows`] for one point).
     #[inline]
     fn distance_row(&self, l: Vec3, pw: &Powers) -> (f32, [f32; SQ_PARAMS]) {
-        let (r, n, k) = self.base.distance_parts(l, pw);
+        let [row] = self.distance_rows(&[l], &[*pw], 1);
+        row
+    }
+
+    /// The radial distance at `l` (powers `pw`, G > 0) with its exact analytic Jacobian row.
+    #[inline]
+    fn radial_row(&self, l: Vec3, pw: &Powers) -> (f32, [f32; SQ_PARAMS]) {
+        let (_, n, k) = self.base.distance_parts(l, pw);
         let mut row = [0.0f32; SQ_PARAMS];
-        if self.radial && pw.g > 1e-6 {
-            // d = ‖l‖(1 − 1/G): ∂d/∂θ = ‖l‖·∂G/∂θ/G² exactly; ∂d/∂l = l̂(1 − 1/G) + ‖l‖·∇G/G² with ∇G = n/k.
-            let (len, g) = (linalg::norm(l), pw.g);
-            let dg = self.base.shape_gradient(l, pw);
-            for (d, x) in row.iter_mut().zip(dg).take(self.columns) {
-                *d = len * x / (g * g);
-            }
-            let along = linalg::scale(linalg::normalize_or(l, n), 1.0 - 1.0 / g);
-            let grad_g = if k > 0.0 { linalg::scale(n, len / (k * g * g)) } else { [0.0; 3] };
-            let dl = linalg::add(along, grad_g);
-            let dt = linalg::scale(linalg::mat_vec(&self.base.rotation, dl), -1.0);
-            let dr = linalg::cross(dl, l);
-            for (x, d) in row.iter_mut().skip(5).zip(dt.iter().chain(&dr)) {
-                *x = *d;
-            }
-            return (Superquadric::radial_distance(l, pw), row);
+        // d = ‖l‖(1 − 1/G): ∂d/∂θ = ‖l‖·∂G/∂θ/G² exactly; ∂d/∂l = l̂(1 − 1/G) + ‖l‖·∇G/G² with ∇G = n/k.
+        let (len, g) = (linalg::norm(l), pw.g);
+        let dg = self.base.shape_gradient(l, pw);
+        for (d, x) in row.iter_mut().zip(dg).take(self.columns) {
+            *d = len * x / (g * g);
         }
-        // Forward differences: the first-order k·∂G/∂θ ignores how k = 1/‖∇G‖ changes with the shape, and
-        // measured on the random-shape test it leaves 70 % of boxes beyond 1 cm / 10 % (23 % here).
-        for ((d, m), h) in row.iter_mut().zip(&self.shape).zip(&self.steps).take(self.columns) {
-            *d = (m.distance_from(l, &m.powers_reusing(&self.base, l, pw)).0 - r) / h;
-        }
-        let dt = linalg::scale(linalg::mat_vec(&self.base.rotation, n), -1.0);
-        let dr = linalg::cross(n, l);
+        let along = linalg::scale(linalg::normalize_or(l, n), 1.0 - 1.0 / g);
+        let grad_g = if k > 0.0 { linalg::scale(n, len / (k * g * g)) } else { [0.0; 3] };
+        let dl = linalg::add(along, grad_g);
+        let dt = linalg::scale(linalg::mat_vec(&self.base.rotation, dl), -1.0);
+        let dr = linalg::cross(dl, l);
         for (x, d) in row.iter_mut().skip(5).zip(dt.iter().chain(&dr)) {
             *x = *d;
         }
-        (r, row)
+        (Superquadric::radial_distance(l, pw), row)
     }
-}
 
-impl Perturbed {
-    /// [`Perturbed::distance_row`] at each of [`LANES`] local coordinates `l` (powers `pw` of `base` there), the
-    /// first `n` of them: the forward differences of the shape columns take each perturbed model's powers at
-    /// all lanes at once ([`Superquadric::powers_reusing_n`]). The same bits as `distance_row` at each.
+    /// The signed distances at `N` local coordinates `l` (powers `pw` of `base` there), the first `n` of them,
+    /// and their Jacobian rows: the radial distance with its analytic row ([`Perturbed::radial_row`]) where
+    /// [`Problem::radial`] and G > 0; else the metric distance to first order, with the distance's gradient taken
+    /// as k·∇G (see [`Superquadric::distance_parts`]), the pose columns analytic (∂d/∂t = −R·n, ∂d/∂r = n × p̃)
+    /// and the shape columns forward differences whose perturbed models take their powers at all points at once
+    /// ([`Superquadric::powers_reusing_n`]): the first-order k·∂G/∂θ ignores how k = 1/‖∇G‖ changes with the
+    /// shape, and measured on the random-shape test it leaves 70 % of boxes beyond 1 cm / 10 % (23 % here).
     #[inline]
-    fn distance_rows(&self, l: &[Vec3; LANES], pw: &[Powers; LANES], n: usize) -> [(f32, [f32; SQ_PARAMS]); LANES] {
-        let mut out = [(0.0f32, [0.0f32; SQ_PARAMS]); LANES];
-        if self.radial {
-            for ((o, l), pw) in out.iter_mut().zip(l).zip(pw).take(n) {
-                *o = self.distance_row(*l, pw);
+    fn distance_rows<const N: usize>(&self, l: &[Vec3; N], pw: &[Powers; N], n: usize) -> [(f32, [f32; SQ_PARAMS]); N] {
+        let mut out = [(0.0f32, [0.0f32; SQ_PARAMS]); N];
+        let radial = |p: &Powers| self.radial && p.g > 1e-6;
+        if pw.iter().take(n).any(|p| !radial(p)) {
+            let mut normals = [[0.0f32; 3]; N];
+            for (((o, nrm), l), pw) in out.iter_mut().zip(normals.iter_mut()).zip(l).zip(pw).take(n) {
+                let (r, normal, _) = self.base.distance_parts(*l, pw);
+                o.0 = r;
+                *nrm = normal;
             }
-            return out;
-        }
-        let mut normals = [[0.0f32; 3]; LANES];
-        for (((o, n), l), pw) in out.iter_mut().zip(normals.iter_mut()).zip(l).zip(pw).take(n) {
-            let (r, normal, _) = self.base.distance_parts(*l, pw);
-            o.0 = r;
-            *n = normal;
-        }
-        for (j, (m, h)) in self.shape.iter().zip(&self.steps).take(self.columns).enumerate() {
-            let moved = m.powers_reusing_n(&self.base, l, pw);
-            for ((o, l), mp) in out.iter_mut().zip(l).zip(&moved).take(n) {
-                if let Some(d) = o.1.get_mut(j) {
-                    *d = (m.distance_from(*l, mp).0 - o.0) / h;
+            for (j, (m, h)) in self.shape.iter().zip(&self.steps).take(self.columns).enumerate() {
+                let moved = m.powers_reusing_n(&self.base, l, pw);
+                for ((o, l), mp) in out.iter_mut().zip(l).zip(&moved).take(n) {
+                    if let Some(d) = o.1.get_mut(j) {
+                        *d = (m.distance_from(*l, mp).0 - o.0) / h;
+                    }
+                }
+            }
+            for ((o, l), normal) in out.iter_mut().zip(l).zip(&normals).take(n) {
+                let dt = linalg::scale(linalg::mat_vec(&self.base.rotation, *normal), -1.0);
+                let dr = linalg::cross(*normal, *l);
+                for (x, d) in o.1.iter_mut().skip(5).zip(dt.iter().chain(&dr)) {
+                    *x = *d;
                 }
             }
         }
-        for ((o, l), normal) in out.iter_mut().zip(l).zip(&normals).take(n) {
-            let dt = linalg::scale(linalg::mat_vec(&self.base.rotation, *normal), -1.0);
-            let dr = linalg::cross(*normal, *l);
-            for (x, d) in o.1.iter_mut().skip(5).zip(dt.iter().chain(&dr)) {
-                *x = *d;
+        for ((o, l), pw) in out.iter_mut().zip(l).zip(pw).take(n) {
+            if radial(pw) {
+                *o = self.radial_row(*l, pw);
             }
         }
         out
