@@ -78,7 +78,7 @@ pub struct Superquadric {
 #[inline]
 fn term_log2(x: f32, a: f32) -> f32 {
     let q = (x / a) * (x / a);
-    fastmath::log2_select(q.min(1e4))
+    fastmath::log2(q.min(1e4))
 }
 
 /// One term (x/a)^(2/ε) of F, from [`term_log2`].
@@ -192,7 +192,7 @@ impl Superquadric {
     }
 
     /// [`Superquadric::powers`] at each of `N` local coordinates, lane by lane without branches
-    /// ([`fastmath::log2_select`]) so that for N = [`LANES`] the lane loops vectorise; the same bits for every N.
+    /// ([`fastmath::log2`], [`fastmath::pow_log2`]) so that for N = [`LANES`] the lane loops vectorise; the same bits for every N.
     #[inline]
     fn powers_n<const N: usize>(&self, l: &[Vec3; N]) -> [Powers; N] {
         let [a1, a2, a3] = self.scales;
@@ -202,14 +202,14 @@ impl Superquadric {
         for (o, l) in out.iter_mut().zip(l) {
             let log2_q = [term_log2(l[0], a1), term_log2(l[1], a2), term_log2(l[2], a3)];
             let t = [
-                fastmath::pow_log2_select(log2_q[0], y2),
-                fastmath::pow_log2_select(log2_q[1], y2),
-                fastmath::pow_log2_select(log2_q[2], y1),
+                fastmath::pow_log2(log2_q[0], y2),
+                fastmath::pow_log2(log2_q[1], y2),
+                fastmath::pow_log2(log2_q[2], y1),
             ];
-            let log2_s = fastmath::log2_select(t[0] + t[1]);
-            let xy = fastmath::pow_log2_select(log2_s, yxy);
-            let log2_f = fastmath::log2_select(xy + t[2]);
-            *o = Powers { t, xy, g: fastmath::pow_log2_select(log2_f, yg), log2_q, log2_s, log2_f };
+            let log2_s = fastmath::log2(t[0] + t[1]);
+            let xy = fastmath::pow_log2(log2_s, yxy);
+            let log2_f = fastmath::log2(xy + t[2]);
+            *o = Powers { t, xy, g: fastmath::pow_log2(log2_f, yg), log2_q, log2_s, log2_f };
         }
         out
     }
@@ -242,27 +242,27 @@ impl Superquadric {
             out.iter_mut().zip(l).for_each(|(o, l)| o.log2_q[2] = log2_term(l[2], a3));
         }
         if new_t[0] {
-            out.iter_mut().for_each(|o| o.t[0] = fastmath::pow_log2_select(o.log2_q[0], y2));
+            out.iter_mut().for_each(|o| o.t[0] = fastmath::pow_log2(o.log2_q[0], y2));
         }
         if new_t[1] {
-            out.iter_mut().for_each(|o| o.t[1] = fastmath::pow_log2_select(o.log2_q[1], y2));
+            out.iter_mut().for_each(|o| o.t[1] = fastmath::pow_log2(o.log2_q[1], y2));
         }
         if new_t[2] {
-            out.iter_mut().for_each(|o| o.t[2] = fastmath::pow_log2_select(o.log2_q[2], y1));
+            out.iter_mut().for_each(|o| o.t[2] = fastmath::pow_log2(o.log2_q[2], y1));
         }
         if new_s {
             for o in out.iter_mut() {
-                o.log2_s = fastmath::log2_select(o.t[0] + o.t[1]);
+                o.log2_s = fastmath::log2(o.t[0] + o.t[1]);
             }
         }
         if new_xy {
             for o in out.iter_mut() {
-                o.xy = fastmath::pow_log2_select(o.log2_s, yxy);
+                o.xy = fastmath::pow_log2(o.log2_s, yxy);
             }
         }
         for o in out.iter_mut() {
-            o.log2_f = fastmath::log2_select(o.xy + o.t[2]);
-            o.g = fastmath::pow_log2_select(o.log2_f, yg);
+            o.log2_f = fastmath::log2(o.xy + o.t[2]);
+            o.g = fastmath::pow_log2(o.log2_f, yg);
         }
         out
     }
@@ -1554,7 +1554,7 @@ mod gradient_tests {
         bits(a).eq(bits(b))
     }
 
-    /// The powers straight from [`fastmath::pow`] and [`fastmath::log2`] (the branchy scalar forms).
+    /// The powers straight from [`fastmath::pow`] and [`fastmath::log2`], one by one.
     fn reference_powers(sq: &Superquadric, l: Vec3) -> Powers {
         let [a1, a2, a3] = sq.scales;
         let [e1, e2] = sq.eps;
