@@ -1,4 +1,7 @@
-//! Edge coding of plane cells ([`crate::map::CellCoding::Edges`]): each row of the cell box as its transitions
+//! The codings of plane cells on the wire besides the bitmap: run lengths ([`crate::map::CellCoding::Runs`],
+//! [`CellRuns`]) and edges.
+//!
+//! Edge coding ([`crate::map::CellCoding::Edges`]): each row of the cell box as its transitions
 //! (the column where a run of occupied cells starts, and the column just past its end), coded against the row
 //! above in a bit stream, the way fax machines code scan lines (ITU-T T.6 "vertical mode").
 //!
@@ -7,8 +10,90 @@
 //! coded explicitly: its transition count and each column in 7 bits (or as many as the box width needs). The
 //! first row is coded against an empty row. The boundary of a floor or a table top moves by a cell or two from
 //! row to row, so most rows cost a few bits: the cabinet's floor takes about 90 bytes (median of its 58 frames)
-//! instead of 180 as run lengths and 430 as a bitmap. Bits are written from the most significant bit of each byte; the last byte is
-//! padded with zeros.
+//! instead of 180 as run lengths and 430 as a bitmap. Bits are written from the most significant bit of each
+//! byte; the last byte is padded with zeros.
+
+/// The run lengths of [`crate::map::CellCoding::Runs`] bytes, in order; it stops at the end or at a malformed
+/// varint (more than three bytes), which [`crate::wire::decode`] refuses before a map is handed out.
+#[derive(Debug, Clone)]
+pub struct CellRuns<'a> {
+    bytes: &'a [u8],
+}
+
+impl<'a> CellRuns<'a> {
+    /// The runs of `bytes`.
+    pub fn new(bytes: &'a [u8]) -> Self {
+        CellRuns { bytes }
+    }
+
+    /// Whether every byte was consumed by well-formed varints (after iterating to the end).
+    pub fn is_exhausted(&self) -> bool {
+        self.bytes.is_empty()
+    }
+}
+
+impl Iterator for CellRuns<'_> {
+    type Item = u32;
+
+    fn next(&mut self) -> Option<u32> {
+        let mut value = 0u32;
+        for (k, &b) in self.bytes.iter().enumerate().take(3) {
+            value |= u32::from(b & 0x7f) << (7 * k);
+            if b & 0x80 == 0 {
+                self.bytes = self.bytes.get(k + 1..).unwrap_or(&[]);
+                return Some(value);
+            }
+        }
+        None
+    }
+}
+
+/// Appends run length `n` as an unsigned LEB128 varint to `out` at `*len`; `false` when it does not fit.
+pub fn push_run(out: &mut [u8], len: &mut usize, mut n: u32) -> bool {
+    loop {
+        let Some(slot) = out.get_mut(*len) else { return false };
+        let more = n >= 0x80;
+        *slot = (n & 0x7f) as u8 | if more { 0x80 } else { 0 };
+        *len += 1;
+        n >>= 7;
+        if !more {
+            return true;
+        }
+    }
+}
+
+/// The run lengths ([`crate::map::CellCoding::Runs`]) of the first `cells` bits of `bits` into `out`: the bytes written, or
+/// `None` when they do not fit.
+pub fn run_lengths(bits: &[u8], cells: usize, out: &mut [u8]) -> Option<usize> {
+    let (mut len, mut run, mut set) = (0usize, 0u32, false);
+    for k in 0..cells {
+        let bit = bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1);
+        if bit != set {
+            if !push_run(out, &mut len, run) {
+                return None;
+            }
+            (run, set) = (0, bit);
+        }
+        run += 1;
+    }
+    push_run(out, &mut len, run).then_some(len)
+}
+
+/// Whether `bytes` are well-formed run lengths covering exactly `cells` cells, each run but the first non-empty.
+pub fn runs_cover(bytes: &[u8], cells: usize) -> bool {
+    let mut runs = CellRuns::new(bytes);
+    let mut total = 0usize;
+    for (r, run) in runs.by_ref().enumerate() {
+        if run == 0 && r > 0 {
+            return false;
+        }
+        total += run as usize;
+        if total > cells {
+            return false;
+        }
+    }
+    runs.is_exhausted() && total == cells
+}
 
 /// Most transitions in one row: boxes up to 255 cells wide.
 pub const MAX_EDGES: usize = 256;
@@ -81,7 +166,7 @@ fn row_edges(bits: &[u8], width: usize, j: usize, out: &mut [u8; MAX_EDGES]) -> 
 
 /// Codes the `width × height` bitmap `bits` into `out`: the bytes written, or `None` when they do not fit (or
 /// the box is wider than 255 cells).
-pub fn encode(bits: &[u8], width: usize, height: usize, out: &mut [u8]) -> Option<usize> {
+pub fn encode_edges(bits: &[u8], width: usize, height: usize, out: &mut [u8]) -> Option<usize> {
     if width > MAX_EDGES - 1 {
         return None;
     }
@@ -207,7 +292,7 @@ impl<'a> EdgeRows<'a> {
 
 /// Whether `bytes` code exactly `height` valid rows of a box `width` cells wide, with nothing but zero padding
 /// after the last.
-pub fn covers(bytes: &[u8], width: usize, height: usize) -> bool {
+pub fn edges_cover(bytes: &[u8], width: usize, height: usize) -> bool {
     let mut rows = EdgeRows::new(bytes, width);
     let mut row = [0u8; MAX_EDGES];
     (0..height).all(|_| rows.next_row(&mut row).is_some()) && rows.is_exhausted()
@@ -215,7 +300,7 @@ pub fn covers(bytes: &[u8], width: usize, height: usize) -> bool {
 
 /// Calls `f(column, row)` for every occupied cell of an edge-coded box, in row-major order (stops at a malformed
 /// row, which [`crate::wire::decode`] refuses before a map is handed out).
-pub fn for_each_set(bytes: &[u8], width: usize, height: usize, mut f: impl FnMut(usize, usize)) {
+pub fn for_each_edge_cell(bytes: &[u8], width: usize, height: usize, mut f: impl FnMut(usize, usize)) {
     let mut rows = EdgeRows::new(bytes, width);
     let mut row = [0u8; MAX_EDGES];
     for j in 0..height {
@@ -250,18 +335,18 @@ mod tests {
     fn round_trip(w: usize, h: usize, set: impl Fn(usize, usize) -> bool + Copy) -> usize {
         let bits = bitmap(w, h, set);
         let mut out = [0u8; 4096];
-        let n = encode(&bits, w, h, &mut out).unwrap();
-        assert!(covers(&out[..n], w, h));
+        let n = encode_edges(&bits, w, h, &mut out).unwrap();
+        assert!(edges_cover(&out[..n], w, h));
         let mut got = std::vec::Vec::new();
-        for_each_set(&out[..n], w, h, |i, j| got.push((i, j)));
+        for_each_edge_cell(&out[..n], w, h, |i, j| got.push((i, j)));
         let want: std::vec::Vec<_> =
             (0..h).flat_map(|j| (0..w).map(move |i| (i, j))).filter(|&(i, j)| set(i, j)).collect();
         assert_eq!(got, want, "{w} x {h}");
         // Any shorter prefix, and any extra byte, is refused.
-        assert!(!covers(&out[..n.saturating_sub(1)], w, h) || n == 0 || h == 0);
+        assert!(!edges_cover(&out[..n.saturating_sub(1)], w, h) || n == 0 || h == 0);
         let mut longer = out[..n].to_vec();
         longer.push(0);
-        assert!(!covers(&longer, w, h));
+        assert!(!edges_cover(&longer, w, h));
         n
     }
 
@@ -292,15 +377,15 @@ mod tests {
         // a column beyond the width is refused.
         // Bits: explicit 1, count 0011, columns 0001, 0010, 0100 (then padding).
         let odd = [0b1001_1000, 0b1001_0010, 0b0000_0000];
-        assert!(!covers(&odd, 8, 1));
+        assert!(!edges_cover(&odd, 8, 1));
         let mut out = [0u8; 8];
         let mut w = BitWriter { out: &mut out, bits: 0 };
         assert!(w.put(1, 1) && w.put(2, 4) && w.put(5, 4) && w.put(3, 4));
-        assert!(!covers(&out[..2], 8, 1));
+        assert!(!edges_cover(&out[..2], 8, 1));
         let mut out = [0u8; 8];
         let mut w = BitWriter { out: &mut out, bits: 0 };
         assert!(w.put(1, 1) && w.put(2, 4) && w.put(3, 4) && w.put(9, 4));
-        assert!(!covers(&out[..2], 8, 1));
+        assert!(!edges_cover(&out[..2], 8, 1));
         // A shift that leaves the row's columns out of order or below 0.
         let mut out = [0u8; 8];
         let mut w = BitWriter { out: &mut out, bits: 0 };
@@ -311,13 +396,37 @@ mod tests {
         let mut w = BitWriter { out: &mut out, bits: 17 };
         // Shifts −1, −2: columns 0, 0.
         assert!(w.put(0b110, 3) && w.put(1, 1) && w.put(0, 1));
-        assert!(!covers(&out[..3], 8, 2));
+        assert!(!edges_cover(&out[..3], 8, 2));
         // Shifts −1, −1: columns 0, 1, a valid row.
         let mut ok = at_zero;
         let mut w = BitWriter { out: &mut ok, bits: 17 };
         assert!(w.put(0b10, 2) && w.put(1, 1));
-        assert!(covers(&ok[..3], 8, 2));
+        assert!(edges_cover(&ok[..3], 8, 2));
         // Wider than 255 cells: not coded.
-        assert_eq!(encode(&[0u8; 64], 256, 1, &mut [0u8; 64]), None);
+        assert_eq!(encode_edges(&[0u8; 64], 256, 1, &mut [0u8; 64]), None);
+    }
+
+    #[test]
+    fn run_lengths_cover_their_cells_exactly() {
+        // Cells 0..12 with 2..5 and 9 set: runs 2, 3, 4, 1, 2.
+        let bits = [0b0001_1100u8, 0b0000_0010];
+        let mut out = [0u8; 8];
+        let n = run_lengths(&bits, 12, &mut out).unwrap();
+        assert_eq!(&out[..n], &[2, 3, 4, 1, 2]);
+        assert!(runs_cover(&out[..n], 12));
+        // A first set cell starts with an empty run; a long run takes two varint bytes.
+        let mut out = [0u8; 8];
+        let n = run_lengths(&[0xff; 40], 300, &mut out).unwrap();
+        assert_eq!(&out[..n], &[0, 0xac, 0x02]);
+        assert!(runs_cover(&out[..n], 300));
+        // Too little room: None.
+        assert_eq!(run_lengths(&bits, 12, &mut [0u8; 4]), None);
+        // Refused: short, long, an empty run after the first, an unterminated varint, trailing garbage.
+        assert!(!runs_cover(&[2, 3, 4, 1, 1], 12));
+        assert!(!runs_cover(&[2, 3, 4, 1, 3], 12));
+        assert!(!runs_cover(&[2, 0, 4, 1, 5], 12));
+        assert!(!runs_cover(&[0x8c], 12));
+        assert!(!runs_cover(&[12, 0x80, 0x80, 0x80, 0x01], 12));
+        assert!(runs_cover(&[12], 12));
     }
 }

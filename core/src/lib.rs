@@ -30,7 +30,7 @@
 //! 6. [`superquadric`]: object superquadrics by Levenberg–Marquardt (§V-A); [`track`]: association,
 //!    equivalence alignment and smoothing (§V-B).
 //! 7. [`map`]: the primitives and their reconstruction samples (§V-C); [`wire`]: the postcard wire format, with
-//!    [`cells`] coding plane cells as row edges.
+//!    [`cells`] coding plane cells as run lengths or row edges.
 //!
 //! [`segment`] makes instance masks from depth alone for datasets without them; [`snapshot`] carries the tracks
 //! across a reset; [`mapper`] runs the stages over the borrowed pools.

@@ -10,7 +10,8 @@ pub enum CellCoding {
     /// A bitmap: bit `k % 8` of byte `k / 8` for cell index k = row × width + column.
     Bitmap,
     /// Run lengths over the cells in index order, alternately unset and set (starting with unset, which may
-    /// be an empty run), each an unsigned LEB128 varint; together they cover every cell ([`CellRuns`]).
+    /// be an empty run), each an unsigned LEB128 varint; together they cover every cell
+    /// ([`crate::cells::CellRuns`]).
     Runs,
     /// Each row's transitions coded against the row above in a bit stream ([`crate::cells`]).
     Edges,
@@ -33,55 +34,6 @@ pub struct CellBits<'a> {
     pub bits: &'a [u8],
 }
 
-/// The run lengths of [`CellCoding::Runs`] bytes, in order; it stops at the end or at a malformed varint (more
-/// than three bytes), which [`crate::wire::decode`] refuses before a map is handed out.
-#[derive(Debug, Clone)]
-pub struct CellRuns<'a> {
-    bytes: &'a [u8],
-}
-
-impl<'a> CellRuns<'a> {
-    /// The runs of `bytes`.
-    pub fn new(bytes: &'a [u8]) -> Self {
-        CellRuns { bytes }
-    }
-
-    /// Whether every byte was consumed by well-formed varints (after iterating to the end).
-    pub fn is_exhausted(&self) -> bool {
-        self.bytes.is_empty()
-    }
-}
-
-impl Iterator for CellRuns<'_> {
-    type Item = u32;
-
-    fn next(&mut self) -> Option<u32> {
-        let mut value = 0u32;
-        for (k, &b) in self.bytes.iter().enumerate().take(3) {
-            value |= u32::from(b & 0x7f) << (7 * k);
-            if b & 0x80 == 0 {
-                self.bytes = self.bytes.get(k + 1..).unwrap_or(&[]);
-                return Some(value);
-            }
-        }
-        None
-    }
-}
-
-/// Appends run length `n` as an unsigned LEB128 varint to `out` at `*len`; `false` when it does not fit.
-pub fn push_run(out: &mut [u8], len: &mut usize, mut n: u32) -> bool {
-    loop {
-        let Some(slot) = out.get_mut(*len) else { return false };
-        let more = n >= 0x80;
-        *slot = (n & 0x7f) as u8 | if more { 0x80 } else { 0 };
-        *len += 1;
-        n >>= 7;
-        if !more {
-            return true;
-        }
-    }
-}
-
 impl CellBits<'_> {
     /// Calls `f(column, row)` for every occupied cell, in row-major order.
     pub fn for_each_set(&self, mut f: impl FnMut(usize, usize)) {
@@ -95,10 +47,12 @@ impl CellBits<'_> {
                     }
                 }
             }
-            CellCoding::Edges => crate::cells::for_each_set(self.bits, self.width as usize, self.height as usize, f),
+            CellCoding::Edges => {
+                crate::cells::for_each_edge_cell(self.bits, self.width as usize, self.height as usize, f)
+            }
             CellCoding::Runs => {
                 let mut k = 0usize;
-                for (r, run) in CellRuns::new(self.bits).enumerate() {
+                for (r, run) in crate::cells::CellRuns::new(self.bits).enumerate() {
                     let end = (k + run as usize).min(cells);
                     if r % 2 == 1 {
                         for c in k..end {
@@ -121,12 +75,12 @@ impl CellBits<'_> {
             CellCoding::Bitmap => self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1),
             CellCoding::Edges => {
                 let mut hit = false;
-                crate::cells::for_each_set(self.bits, self.width as usize, j + 1, |a, b| hit |= a == i && b == j);
+                crate::cells::for_each_edge_cell(self.bits, self.width as usize, j + 1, |a, b| hit |= a == i && b == j);
                 hit
             }
             CellCoding::Runs => {
                 let mut start = 0usize;
-                for (r, run) in CellRuns::new(self.bits).enumerate() {
+                for (r, run) in crate::cells::CellRuns::new(self.bits).enumerate() {
                     start += run as usize;
                     if k < start {
                         return r % 2 == 1;

@@ -19,8 +19,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::cells::{run_lengths, runs_cover};
 use crate::linalg::{self, Mat3, Vec3};
-use crate::map::{push_run, CellBits, CellCoding, CellRuns, MapGmm, MapPlane, MapSq, Primitive};
+use crate::map::{CellBits, CellCoding, MapGmm, MapPlane, MapSq, Primitive};
 use crate::superquadric::{Superquadric, EPS_RANGE, MIN_SCALE};
 
 /// First two bytes of every map.
@@ -283,7 +284,7 @@ fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
     let mut edges = [0u8; MAX_PLANE_BITS];
     let limit = n_runs.unwrap_or(n_bytes).min(n_bytes);
     let n_edges =
-        crate::cells::encode(bitmap, width as usize, height as usize, edges.get_mut(..limit).unwrap_or(&mut []));
+        crate::cells::encode_edges(bitmap, width as usize, height as usize, edges.get_mut(..limit).unwrap_or(&mut []));
     let (coding, coded) = match (n_edges, n_runs) {
         (Some(n), _) if n < limit => (2, edges.get(..n).unwrap_or(&[])),
         (_, Some(n)) if n < n_bytes => (1, runs.get(..n).unwrap_or(&[])),
@@ -305,23 +306,6 @@ fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
         bits: coded,
     };
     postcard::to_slice(&wire, out).map(|s| s.len()).map_err(|_| WireError::BufferTooSmall)
-}
-
-/// The run lengths ([`CellCoding::Runs`]) of the first `cells` bits of `bits` into `out`: the bytes written, or
-/// `None` when they do not fit.
-fn run_lengths(bits: &[u8], cells: usize, out: &mut [u8]) -> Option<usize> {
-    let (mut len, mut run, mut set) = (0usize, 0u32, false);
-    for k in 0..cells {
-        let bit = bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1);
-        if bit != set {
-            if !push_run(out, &mut len, run) {
-                return None;
-            }
-            (run, set) = (0, bit);
-        }
-        run += 1;
-    }
-    push_run(out, &mut len, run).then_some(len)
 }
 
 fn write_sq(s: &MapSq, out: &mut [u8]) -> Result<usize, WireError> {
@@ -371,7 +355,7 @@ fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
     let coding = match w.coding {
         0 if w.bits.len() == cells.div_ceil(8) => CellCoding::Bitmap,
         1 if runs_cover(w.bits, cells) => CellCoding::Runs,
-        2 if cells <= MAX_PLANE_CELLS && crate::cells::covers(w.bits, w.width as usize, w.height as usize) => {
+        2 if cells <= MAX_PLANE_CELLS && crate::cells::edges_cover(w.bits, w.width as usize, w.height as usize) => {
             CellCoding::Edges
         }
         _ => return Err(WireError::BadValue("plane cells")),
@@ -392,22 +376,6 @@ fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
         g_p: w.g_p as f32 / 10_000.0,
         cells: CellBits { a0: w.a0, b0: w.b0, width: w.width, height: w.height, coding, bits: w.bits },
     })
-}
-
-/// Whether `bytes` are well-formed run lengths covering exactly `cells` cells, each run but the first non-empty.
-fn runs_cover(bytes: &[u8], cells: usize) -> bool {
-    let mut runs = CellRuns::new(bytes);
-    let mut total = 0usize;
-    for (r, run) in runs.by_ref().enumerate() {
-        if run == 0 && r > 0 {
-            return false;
-        }
-        total += run as usize;
-        if total > cells {
-            return false;
-        }
-    }
-    runs.is_exhausted() && total == cells
 }
 
 fn sq_of(w: WireSq) -> Result<MapSq, WireError> {
@@ -509,33 +477,4 @@ pub fn decode<'a>(bytes: &'a [u8], mut f: impl FnMut(Primitive<'a>)) -> Result<H
     let body = checked_body(bytes)?;
     walk(body, None)?;
     walk(body, Some(&mut f))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn run_lengths_cover_their_cells_exactly() {
-        // Cells 0..12 with 2..5 and 9 set: runs 2, 3, 4, 1, 2.
-        let bits = [0b0001_1100u8, 0b0000_0010];
-        let mut out = [0u8; 8];
-        let n = run_lengths(&bits, 12, &mut out).unwrap();
-        assert_eq!(&out[..n], &[2, 3, 4, 1, 2]);
-        assert!(runs_cover(&out[..n], 12));
-        // A first set cell starts with an empty run; a long run takes two varint bytes.
-        let mut out = [0u8; 8];
-        let n = run_lengths(&[0xff; 40], 300, &mut out).unwrap();
-        assert_eq!(&out[..n], &[0, 0xac, 0x02]);
-        assert!(runs_cover(&out[..n], 300));
-        // Too little room: None.
-        assert_eq!(run_lengths(&bits, 12, &mut [0u8; 4]), None);
-        // Refused: short, long, an empty run after the first, an unterminated varint, trailing garbage.
-        assert!(!runs_cover(&[2, 3, 4, 1, 1], 12));
-        assert!(!runs_cover(&[2, 3, 4, 1, 3], 12));
-        assert!(!runs_cover(&[2, 0, 4, 1, 5], 12));
-        assert!(!runs_cover(&[0x8c], 12));
-        assert!(!runs_cover(&[12, 0x80, 0x80, 0x80, 0x01], 12));
-        assert!(runs_cover(&[12], 12));
-    }
 }
