@@ -267,16 +267,17 @@ impl Superquadric {
         out
     }
 
-    /// [`Superquadric::powers`] at the local coordinates of each camera-frame point of `points`, into `out` (as
-    /// many as both hold), [`LANES`] at a time.
-    fn powers_of_points(&self, points: &[Vec3], out: &mut [Powers]) {
-        for (chunk, o) in points.chunks(LANES).zip(out.chunks_mut(LANES)) {
-            let mut l = [[0.0f32; 3]; LANES];
-            for (d, &p) in l.iter_mut().zip(chunk) {
+    /// Calls `f(l, powers)` with the local coordinates and [`Superquadric::powers`] of each camera-frame point of
+    /// `points` in order, taking them [`LANES`] at a time.
+    #[inline]
+    fn for_each_powers(&self, points: &[Vec3], mut f: impl FnMut(Vec3, Powers)) {
+        for chunk in points.chunks(LANES) {
+            let mut ls = [[0.0f32; 3]; LANES];
+            for (d, &p) in ls.iter_mut().zip(chunk) {
                 *d = self.local(p);
             }
-            for (d, pw) in o.iter_mut().zip(self.powers_n(&l)) {
-                *d = pw;
+            for (&l, pw) in ls.iter().zip(self.powers_n(&ls)).take(chunk.len()) {
+                f(l, pw);
             }
         }
     }
@@ -738,19 +739,13 @@ fn cost(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
 fn cost_keeping(sq: &Superquadric, prob: &Problem<'_>, kept: &mut [Powers]) -> f32 {
     let mut kept = kept.iter_mut();
     let mut data = 0.0f32;
-    for chunk in prob.points.chunks(LANES) {
-        let mut ls = [[0.0f32; 3]; LANES];
-        for (d, &p) in ls.iter_mut().zip(chunk) {
-            *d = sq.local(p);
+    sq.for_each_powers(prob.points, |l, pw| {
+        if let Some(k) = kept.next() {
+            *k = pw;
         }
-        for (l, pw) in ls.iter().zip(sq.powers_n(&ls)).take(chunk.len()) {
-            if let Some(k) = kept.next() {
-                *k = pw;
-            }
-            let d = if prob.radial { Superquadric::radial_distance(*l, &pw) } else { sq.distance_from(*l, &pw).0 };
-            data += d * d;
-        }
-    }
+        let d = if prob.radial { Superquadric::radial_distance(l, &pw) } else { sq.distance_from(l, &pw).0 };
+        data += d * d;
+    });
     let c = data + penalties(sq, prob);
     if c.is_finite() {
         c
@@ -1038,7 +1033,12 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         let mut normal = Normal { jtj: [[0.0f32; NORMAL_LANES]; SQ_PARAMS], jtr: [0.0f32; SQ_PARAMS] };
         let batched = points.len() <= kept.len();
         if batched && !kept_model.is_some_and(|k| same_bits(&k, &base)) {
-            base.powers_of_points(points, &mut kept);
+            let mut slots = kept.iter_mut();
+            base.for_each_powers(points, |_, pw| {
+                if let Some(k) = slots.next() {
+                    *k = pw;
+                }
+            });
         }
         if batched {
             for (chunk, pws) in points.chunks(LANES).zip(kept.chunks(LANES)) {
