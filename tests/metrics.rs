@@ -70,7 +70,7 @@ fn true_object_map(scene: &Scene, pose: &Pose) -> MapSamples {
                 Some(to_camera(pose, [0, 1, 2].map(|k| origin[k] - t * dir[k])))
             })
             .collect();
-        prims.push(PrimSamples { kind: KIND_SQ, instance: s.instance, samples });
+        prims.push(PrimSamples { kind: KIND_SQ, instance: s.instance, samples, extent_m: None });
     }
     MapSamples { prims }
 }

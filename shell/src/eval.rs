@@ -189,6 +189,8 @@ pub struct PrimSamples {
     /// Every surface sample ([`Primitive::for_each_surface_sample`]: a superquadric's whole surface, not only
     /// its camera-facing side), camera frame, metres.
     pub samples: Vec<[f32; 3]>,
+    /// A superquadric's full extents 2·a1, 2·a2, 2·a3 along its own axes, metres (`None` for other primitives).
+    pub extent_m: Option<[f32; 3]>,
 }
 
 impl PrimSamples {
@@ -210,14 +212,17 @@ pub struct MapSamples {
 pub fn map_samples(mapper: &Mapper<'_>) -> MapSamples {
     let mut prims = Vec::new();
     mapper.for_each_primitive(|p| {
-        let (kind, instance) = match p {
-            Primitive::Plane(_) => (KIND_PLANE, 0),
-            Primitive::Sq(s) => (KIND_SQ, s.instance),
-            Primitive::Gmm(g) => (KIND_GMM, g.instance),
+        let (kind, instance, extent_m) = match p {
+            Primitive::Plane(_) => (KIND_PLANE, 0, None),
+            Primitive::Sq(s) => {
+                let a = s.sq.scales;
+                (KIND_SQ, s.instance, Some(a.map(|h| 2.0 * h)))
+            }
+            Primitive::Gmm(g) => (KIND_GMM, g.instance, None),
         };
         let mut samples = Vec::new();
         p.for_each_surface_sample(|x| samples.push(x));
-        prims.push(PrimSamples { kind, instance, samples });
+        prims.push(PrimSamples { kind, instance, samples, extent_m });
     });
     MapSamples { prims }
 }
@@ -351,6 +356,16 @@ pub fn behind_support(map: &MapSamples, obs: &Observation<'_>) -> Option<BehindS
 /// counts as an id) each hold ≥ [`ADHESION_MIN_SHARE`], and there are ≥ [`ADHESION_MIN_SAMPLES`] of them.
 /// `None` without a ground-truth image.
 pub fn is_adhesion_case(prim: &PrimSamples, obs: &Observation<'_>) -> Option<bool> {
+    let counts = consistent_id_counts(prim, obs)?;
+    let consistent: usize = counts.values().sum();
+    let strong = counts.values().filter(|&&c| c as f64 >= ADHESION_MIN_SHARE * consistent as f64).count();
+    Some(consistent >= ADHESION_MIN_SAMPLES && strong >= 2)
+}
+
+/// The ground-truth ids under one primitive's depth-consistent samples (inside the image, valid depth at their
+/// pixel, |z − observed z| ≤ tolerance), with how many samples each holds; samples within
+/// [`ADHESION_BOUNDARY_PX`] of an id boundary count for none. `None` without a ground-truth image.
+pub fn consistent_id_counts(prim: &PrimSamples, obs: &Observation<'_>) -> Option<HashMap<u16, usize>> {
     obs.gt?;
     let mut counts: HashMap<u16, usize> = HashMap::new();
     for &x in &prim.samples {
@@ -370,9 +385,7 @@ pub fn is_adhesion_case(prim: &PrimSamples, obs: &Observation<'_>) -> Option<boo
             *counts.entry(id).or_insert(0) += 1;
         }
     }
-    let consistent: usize = counts.values().sum();
-    let strong = counts.values().filter(|&&c| c as f64 >= ADHESION_MIN_SHARE * consistent as f64).count();
-    Some(consistent >= ADHESION_MIN_SAMPLES && strong >= 2)
+    Some(counts)
 }
 
 /// Map-level adhesion cases of one frame: `(all primitives, superquadrics only)`; `None` without a
@@ -385,6 +398,65 @@ pub fn adhesion_cases(map: &MapSamples, obs: &Observation<'_>) -> Option<(u32, u
         cases.1 += u32::from(p.is_sq());
     }
     Some(cases)
+}
+
+/// Published sizes of YCB objects (Calli et al., "Benchmarking in manipulation research using the
+/// Yale-CMU-Berkeley object and model set", IEEE RAM 2015), metres, by the YCB names YCB-Video's labels use.
+/// The mug is its body (8.0 cm across, 8.2 cm high): one superquadric models the body, not the handle.
+pub const YCB_NOMINAL_SIZES_M: [(&str, [f32; 3]); 3] = [
+    ("009_gelatin_box", [0.089, 0.073, 0.028]),
+    ("025_mug", [0.080, 0.080, 0.082]),
+    ("061_foam_brick", [0.050, 0.075, 0.050]),
+];
+
+/// A superquadric's size is within this relative difference of its object's nominal size (issue 12: 15 %).
+pub const SQ_SIZE_TOLERANCE: f64 = 0.15;
+
+/// The nominal size of a labelled object, metres; `None` for a label without one.
+pub fn nominal_size(label: &str) -> Option<[f32; 3]> {
+    YCB_NOMINAL_SIZES_M.iter().find(|(name, _)| *name == label).map(|&(_, size)| size)
+}
+
+/// How far a superquadric's full extents are from an object's nominal size: both sorted (the fit's axis order
+/// is its own), the largest of |extent − nominal| / nominal over the three axes.
+pub fn size_error(extent_m: [f32; 3], nominal_m: [f32; 3]) -> f64 {
+    let sorted = |mut v: [f32; 3]| {
+        v.sort_by(f32::total_cmp);
+        v
+    };
+    let (e, n) = (sorted(extent_m), sorted(nominal_m));
+    (0..3).map(|k| ((e[k] - n[k]) as f64).abs() / n[k] as f64).fold(0.0, f64::max)
+}
+
+/// One superquadric of a frame's map scored against the nominal size of the object it covers.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SqSize {
+    /// The object's label (the ground-truth id holding most of the superquadric's depth-consistent samples).
+    pub label: String,
+    /// The superquadric's full extents, metres.
+    pub extent_m: [f32; 3],
+    /// The object's nominal size, metres.
+    pub nominal_m: [f32; 3],
+    /// [`size_error`] of the two.
+    pub error: f64,
+}
+
+/// The superquadrics of a map whose object has a nominal size ([`nominal_size`]), each scored; the object is
+/// the ground-truth id with the most depth-consistent samples ([`consistent_id_counts`]), named by `labels`
+/// (ground-truth id → label). Superquadrics on unlabelled structure or unknown objects are left out. `None`
+/// without a ground-truth image.
+pub fn sq_sizes(map: &MapSamples, obs: &Observation<'_>, labels: &HashMap<u16, String>) -> Option<Vec<SqSize>> {
+    obs.gt?;
+    let mut sizes = Vec::new();
+    for p in map.prims.iter().filter(|p| p.is_sq()) {
+        let (Some(extent_m), Some(counts)) = (p.extent_m, consistent_id_counts(p, obs)) else { continue };
+        // The id with the most samples (ties: the smaller id).
+        let Some((&id, _)) = counts.iter().max_by_key(|&(&id, &c)| (c, std::cmp::Reverse(id))) else { continue };
+        let Some(label) = labels.get(&id).filter(|_| id != 0) else { continue };
+        let Some(nominal_m) = nominal_size(label) else { continue };
+        sizes.push(SqSize { label: label.clone(), extent_m, nominal_m, error: size_error(extent_m, nominal_m) });
+    }
+    Some(sizes)
 }
 
 /// A map judged against the true surfaces of a synthetic scene.
@@ -616,7 +688,7 @@ mod tests {
     }
 
     fn prim(kind: u8, samples: Vec<[f32; 3]>) -> PrimSamples {
-        PrimSamples { kind, instance: 1, samples }
+        PrimSamples { kind, instance: 1, samples, extent_m: None }
     }
 
     fn map(prims: Vec<PrimSamples>) -> MapSamples {
@@ -744,6 +816,46 @@ mod tests {
         ]);
         assert_eq!(adhesion_cases(&m, &obs), Some((2, 1)));
         assert_eq!(adhesion_cases(&m, &Observation { gt: None, ..obs }), None);
+    }
+
+    #[test]
+    fn sq_sizes_score_the_object_under_most_samples_against_its_nominal_size() {
+        assert_eq!(size_error([0.028, 0.089, 0.073], [0.089, 0.073, 0.028]), 0.0, "axis order is the fit's own");
+        // 2.8 cm against 2.8, 8.9 against 7.3 (+21.9 %), 7.3 against 8.9 after sorting: the worst counts.
+        let e = size_error([0.028, 0.089, 0.089], [0.089, 0.073, 0.028]);
+        assert!((e - 0.016 / 0.073).abs() < 1e-6, "{e}");
+        assert_eq!(nominal_size("061_foam_brick"), Some([0.050, 0.075, 0.050]));
+        assert_eq!(nominal_size("chair"), None);
+
+        // Left half id 21 (the brick), right half id 99 (no nominal size); depth 1 m.
+        let depth = flat(1.0);
+        let gt: Vec<u16> = (0..W * H).map(|i| if i % W < 20 { 21 } else { 99 }).collect();
+        let params = Params::default();
+        let obs = Observation { frame: frame(&depth), params: &params, gt: Some(&gt) };
+        let labels: HashMap<u16, String> =
+            [(21, "061_foam_brick".to_owned()), (99, "chair".to_owned())].into_iter().collect();
+        let sq = |samples: Vec<[f32; 3]>, extent: [f32; 3]| PrimSamples {
+            kind: KIND_SQ,
+            instance: 1,
+            samples,
+            extent_m: Some(extent),
+        };
+        // Mostly on the brick, some on the chair, some in front of everything (not depth-consistent).
+        let mut on_brick = vec![at(10, 10, 1.0); 30];
+        on_brick.extend(vec![at(30, 10, 1.0); 10]);
+        on_brick.extend(vec![at(30, 10, 0.5); 40]);
+        let mut on_chair = vec![at(30, 10, 1.0); 30];
+        on_chair.extend(vec![at(10, 10, 1.0); 10]);
+        let m = map(vec![
+            sq(on_brick, [0.06, 0.075, 0.05]),
+            sq(on_chair, [0.05, 0.075, 0.05]),
+            prim(KIND_GMM, vec![at(10, 10, 1.0); 30]),
+        ]);
+        let sizes = sq_sizes(&m, &obs, &labels).unwrap();
+        assert_eq!(sizes.len(), 1, "the chair has no nominal size, the Gaussian is no superquadric");
+        assert_eq!(sizes[0].label, "061_foam_brick");
+        assert!((sizes[0].error - 0.2).abs() < 1e-6, "6 cm against 5: {}", sizes[0].error);
+        assert!(sq_sizes(&m, &Observation { gt: None, ..obs }, &labels).is_none());
     }
 
     fn surface(name: &str, instance: u16, shape: Shape) -> Surface {

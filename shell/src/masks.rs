@@ -148,6 +148,22 @@ struct JsonMasks {
     instances: Vec<JsonInstance>,
 }
 
+/// The labels of the ground-truth ids of frame `stem` of a dataset (id → label): from `gt/<stem>.json`, else
+/// from the dataset's own `masks/<stem>.json` (whose ids are the ground truth's on sets that ship both, such as
+/// YCB-Video); empty when neither exists.
+pub fn read_gt_labels(dataset: &Path, stem: &str) -> Result<HashMap<u16, String>> {
+    let file = format!("{stem}.json");
+    let Some(json) =
+        [dataset.join("gt").join(&file), dataset.join("masks").join(&file)].into_iter().find(|p| p.is_file())
+    else {
+        return Ok(HashMap::new());
+    };
+    let text = fs::read_to_string(&json).with_context(|| format!("{}: cannot read", json.display()))?;
+    let parsed: JsonMasks =
+        serde_json::from_str(&text).map_err(|e| anyhow!("{}: malformed instance list: {e}", json.display()))?;
+    Ok(parsed.instances.into_iter().map(|i| (i.id, i.label)).collect())
+}
+
 /// Reads the masks of frame `stem` from `dir` for a `width × height` frame; `Ok(None)` when it has none.
 pub fn read_frame_masks(
     dir: &Path,

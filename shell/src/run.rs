@@ -183,6 +183,12 @@ pub struct FrameRecord {
     pub adhesion_map: Option<f64>,
     /// Map-level adhesion cases among the superquadrics.
     pub adhesion_map_sq: Option<f64>,
+    /// Largest size error of this frame's superquadrics on objects with a nominal size ([`eval::sq_sizes`];
+    /// needs `gt/` and labels; null when no superquadric is scored).
+    pub sq_size_error_max: Option<f64>,
+    /// Every scored superquadric: the object's label, the superquadric's full extents and the nominal size
+    /// (metres) and the size error.
+    pub sq_sizes: Vec<eval::SqSize>,
     /// Instance recall of this frame's masks (file or segmenter) against `gt/` at IoU ≥ 0.5
     /// ([`eval::mask_match`]; needs `gt/`).
     pub mask_recall: Option<f64>,
@@ -293,6 +299,14 @@ pub struct Summary {
     pub adhesion_map: Option<f64>,
     /// Mean map-level superquadric adhesion cases per frame.
     pub adhesion_map_sq: Option<f64>,
+    /// Superquadrics scored against a nominal object size over the run ([`eval::sq_sizes`]).
+    pub sq_sizes_scored: usize,
+    /// Fraction of them within [`eval::SQ_SIZE_TOLERANCE`] of the nominal size.
+    pub sq_sizes_within_tolerance: Option<f64>,
+    /// Median size error of the scored superquadrics.
+    pub sq_size_error_median: Option<f64>,
+    /// Largest size error of a scored superquadric.
+    pub sq_size_error_max: Option<f64>,
     /// Instance recall of the masks against `gt/` at IoU ≥ 0.5, pooled over the frames (matched / ground-truth
     /// instances; [`eval::mask_match`]).
     pub mask_recall: Option<f64>,
@@ -640,6 +654,10 @@ fn replay<P: Profile + Zeroable>(
             let free = eval::free_space(&map, &obs);
             let behind = eval::behind_support(&map, &obs);
             let adhesion = eval::adhesion_cases(&map, &obs);
+            let sq_sizes = match gt {
+                Some(_) => eval::sq_sizes(&map, &obs, &crate::masks::read_gt_labels(&dataset.root, &fref.stem)?),
+                None => None,
+            };
             let truth = surfaces.as_deref().zip(fref.pose).map(|(s, pose)| eval::true_surface_metrics(&map, &pose, s));
             // Without masks nothing is claimed and every ground-truth instance is missed.
             let no_masks = || FrameMasks {
@@ -705,6 +723,8 @@ fn replay<P: Profile + Zeroable>(
                 sq_behind_support_max_m: has_sq.map(|b| b.max_depth_m),
                 adhesion_map: adhesion.map(|a| a.0 as f64),
                 adhesion_map_sq: adhesion.map(|a| a.1 as f64),
+                sq_size_error_max: sq_sizes.as_ref().and_then(|v| v.iter().map(|s| s.error).reduce(f64::max)),
+                sq_sizes: sq_sizes.unwrap_or_default(),
                 mask_recall: mask_match.and_then(|m| m.recall()),
                 mask_precision: mask_match.and_then(|m| m.precision()),
                 mask_mean_iou: mask_match.and_then(|m| m.mean_iou()),
@@ -758,6 +778,7 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
     let penetration = p95_and_max(&pooled(records, |r| &r.penetrations));
     let penetration_sq = p95_and_max(&pooled(records, |r| &r.penetrations_sq));
     let masks_pooled = records.iter().filter_map(|r| r.mask_match).reduce(|a, b| a.add(&b));
+    let size_errors: Vec<f64> = records.iter().flat_map(|r| r.sq_sizes.iter().map(|s| s.error)).collect();
     let mut pools: BTreeMap<String, PoolRecord> = BTreeMap::new();
     for r in records {
         for (name, p) in &r.pools {
@@ -824,6 +845,12 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
         sq_behind_support_max_m: mean_of(records.iter().map(|r| r.sq_behind_support_max_m)),
         adhesion_map: mean_of(records.iter().map(|r| r.adhesion_map)),
         adhesion_map_sq: mean_of(records.iter().map(|r| r.adhesion_map_sq)),
+        sq_sizes_scored: size_errors.len(),
+        sq_sizes_within_tolerance: (!size_errors.is_empty()).then(|| {
+            size_errors.iter().filter(|&&e| e <= eval::SQ_SIZE_TOLERANCE).count() as f64 / size_errors.len() as f64
+        }),
+        sq_size_error_median: (!size_errors.is_empty()).then(|| median(&size_errors)),
+        sq_size_error_max: size_errors.iter().copied().reduce(f64::max),
         mask_recall: masks_pooled.and_then(|m| m.recall()),
         mask_precision: masks_pooled.and_then(|m| m.precision()),
         mask_mean_iou: masks_pooled.and_then(|m| m.mean_iou()),
