@@ -400,9 +400,10 @@ pub fn adhesion_cases(map: &MapSamples, obs: &Observation<'_>) -> Option<(u32, u
     Some(cases)
 }
 
-/// Published sizes of YCB objects (Calli et al., "Benchmarking in manipulation research using the
-/// Yale-CMU-Berkeley object and model set", IEEE RAM 2015), metres, by the YCB names YCB-Video's labels use.
-/// The mug is its body (8.0 cm across, 8.2 cm high): one superquadric models the body, not the handle.
+/// Published sizes of YCB objects (the YCB object set, Calli et al., IEEE RAM 2015; the gelatin box's and the
+/// foam brick's as `../shared/data/README.md` quotes them), metres, by the YCB names YCB-Video's labels use.
+/// The mug is its body, approximately (8 cm across, 8.2 cm high): one superquadric models the body, not the
+/// handle.
 pub const YCB_NOMINAL_SIZES_M: [(&str, [f32; 3]); 3] = [
     ("009_gelatin_box", [0.089, 0.073, 0.028]),
     ("025_mug", [0.080, 0.080, 0.082]),
@@ -821,7 +822,7 @@ mod tests {
     #[test]
     fn sq_sizes_score_the_object_under_most_samples_against_its_nominal_size() {
         assert_eq!(size_error([0.028, 0.089, 0.073], [0.089, 0.073, 0.028]), 0.0, "axis order is the fit's own");
-        // 2.8 cm against 2.8, 8.9 against 7.3 (+21.9 %), 7.3 against 8.9 after sorting: the worst counts.
+        // Sorted: 2.8 cm against 2.8, 8.9 against 7.3 (+21.9 %), 8.9 against 8.9: the worst counts.
         let e = size_error([0.028, 0.089, 0.089], [0.089, 0.073, 0.028]);
         assert!((e - 0.016 / 0.073).abs() < 1e-6, "{e}");
         assert_eq!(nominal_size("061_foam_brick"), Some([0.050, 0.075, 0.050]));
