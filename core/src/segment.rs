@@ -261,6 +261,8 @@ pub fn segment(
         for cx in 0..grid.cols {
             let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
             let jump = grid.jump(pa[2]);
+            let ia = grid.index(cx, cy);
+            let ca = colour_of(ia);
             for (dx, dy) in [(1, 0), (0, 1)] {
                 let (bx, by) = (cx + dx, cy + dy);
                 // Joined: cell b has a point on the same surface (no depth jump between them).
@@ -272,11 +274,13 @@ pub fn segment(
                 // A nearly flat boundary that bends inwards between cells of different colour is a contact (a
                 // ball on the floor, a can against a crate: the surfaces meet tangentially, so the concave
                 // crease is too faint for the normals), not one surface.
-                let (ca, cb) = (colour_of(grid.index(cx, cy)), colour_of(grid.index(bx, by)));
-                let contrast = ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0);
-                let contact = bend < 0.0 && contrast > COLOUR_STEP;
-                if convex || (linalg::dot(na, nb) >= cos_flat && !contact) {
-                    union_find::union(parents, grid.index(cx, cy), grid.index(bx, by));
+                let ib = grid.index(bx, by);
+                let contact = || {
+                    let cb = colour_of(ib);
+                    bend < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
+                };
+                if convex || (linalg::dot(na, nb) >= cos_flat && !contact()) {
+                    union_find::union(parents, ia, ib);
                 }
             }
         }

@@ -192,7 +192,8 @@ impl Superquadric {
     }
 
     /// [`Superquadric::powers`] at each of `N` local coordinates, lane by lane without branches
-    /// ([`fastmath::log2`], [`fastmath::pow_log2`]) so that for N = [`LANES`] the lane loops vectorise; the same bits for every N.
+    /// ([`fastmath::log2`], [`fastmath::pow_log2`]) so that for N = [`LANES`] the lane loops vectorise; the same
+    /// bits for every N.
     #[inline]
     fn powers_n<const N: usize>(&self, l: &[Vec3; N]) -> [Powers; N] {
         let [a1, a2, a3] = self.scales;

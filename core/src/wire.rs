@@ -352,17 +352,16 @@ fn take<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<(T, &'a [u8]), WireEr
 
 fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
     let cells = w.width as usize * w.height as usize;
-    let coding = match w.coding {
-        0 if w.bits.len() == cells.div_ceil(8) => CellCoding::Bitmap,
-        1 if runs_cover(w.bits, cells) => CellCoding::Runs,
-        2 if cells <= MAX_PLANE_CELLS && crate::cells::edges_cover(w.bits, w.width as usize, w.height as usize) => {
-            CellCoding::Edges
-        }
-        _ => return Err(WireError::BadValue("plane cells")),
-    };
+    // The box bound comes first: it also bounds the work of checking the coded cells.
     if cells > MAX_PLANE_CELLS {
         return Err(WireError::BadValue("plane cells"));
     }
+    let coding = match w.coding {
+        0 if w.bits.len() == cells.div_ceil(8) => CellCoding::Bitmap,
+        1 if runs_cover(w.bits, cells) => CellCoding::Runs,
+        2 if crate::cells::edges_cover(w.bits, w.width as usize, w.height as usize) => CellCoding::Edges,
+        _ => return Err(WireError::BadValue("plane cells")),
+    };
     if w.g_p == 0 {
         return Err(WireError::BadValue("g_p"));
     }
