@@ -11,6 +11,8 @@ fn budget_table_matches_the_code() {
         doc.contains(&table),
         "memory_budget.md is out of date; regenerate the table with `m2smap budget`:\n{table}"
     );
+    let world = budget::world_table();
+    assert!(doc.contains(&world), "memory_budget.md: the world-map table is out of date (`m2smap budget`):\n{world}");
 }
 
 #[test]

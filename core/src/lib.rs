@@ -66,6 +66,7 @@ pub mod supervoxel;
 pub mod track;
 pub mod union_find;
 pub mod wire;
+pub mod world;
 
 pub use error::{FrameError, MaskError, ParamError};
 pub use frame::{Frame, Intrinsics, Pose};

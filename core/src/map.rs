@@ -1,6 +1,8 @@
 //! The frame map: bounded planes, object superquadrics and GMM primitives (paper §V) with their semantic
 //! attributes, and the deterministic reconstruction samples of docs/metrics.md used by evaluation and rendering.
 
+use bytemuck::Zeroable;
+
 use crate::linalg::{self, Mat3, Vec3};
 use crate::superquadric::Superquadric;
 
@@ -133,7 +135,7 @@ pub struct MapPlane<'a> {
 }
 
 /// An object superquadric of the map.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 pub struct MapSq {
     /// The shape and pose (camera frame).
     pub sq: Superquadric,
@@ -148,7 +150,7 @@ pub struct MapSq {
 }
 
 /// A GMM primitive of the map (paper §V-C): μ, Σ = R·diag(d²)·Rᵀ, N, colour and (a, ℓ, s, ρ).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 pub struct MapGmm {
     /// Mean μ, metres.
     pub mean: Vec3,
@@ -277,7 +279,31 @@ impl MapGmm {
     }
 }
 
-impl Primitive<'_> {
+impl<'a> Primitive<'a> {
+    /// This primitive moved by the rigid transform p ↦ R·p + t (`rotation` R orthonormal, `translation` t in
+    /// metres): centroid, centre or mean and rotation move; cells, scales and attributes stay.
+    pub fn moved(&self, rotation: &Mat3, translation: Vec3) -> Primitive<'a> {
+        let point = |p: Vec3| linalg::add(linalg::mat_vec(rotation, p), translation);
+        match *self {
+            Primitive::Plane(p) => Primitive::Plane(MapPlane {
+                centroid: point(p.centroid),
+                rotation: linalg::mat_mul(rotation, &p.rotation),
+                ..p
+            }),
+            Primitive::Sq(s) => Primitive::Sq(MapSq {
+                sq: Superquadric {
+                    centre: point(s.sq.centre),
+                    rotation: linalg::mat_mul(rotation, &s.sq.rotation),
+                    ..s.sq
+                },
+                ..s
+            }),
+            Primitive::Gmm(g) => {
+                Primitive::Gmm(MapGmm { mean: point(g.mean), rotation: linalg::mat_mul(rotation, &g.rotation), ..g })
+            }
+        }
+    }
+
     /// The reconstruction samples of this primitive (docs/metrics.md), camera frame, metres.
     pub fn for_each_sample(&self, f: impl FnMut(Vec3)) {
         match self {

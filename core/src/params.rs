@@ -256,6 +256,18 @@ pub struct Params {
     /// A measurement whose half-axes differ from its track's by more than this factor leaves the track
     /// unchanged (outlier gate; open in the paper).
     pub track_scale_gate: f32,
+
+    // --- 11. world map (an m2smap extension, [`crate::world`]) -------------------------------------------
+    /// A frame plane joins a world plane when their normals differ by at most this angle, degrees.
+    pub world_plane_angle_deg: f32,
+    /// … and its centroid lies within this distance of the world plane, metres.
+    pub world_plane_offset: f32,
+    /// A frame Gaussian merges into a world Gaussian when the squared Mahalanobis distance of their means under
+    /// the sum of their covariances is at most this.
+    pub world_gmm_gate: f32,
+    /// … and the merged Gaussian's total variance (trace of Σ) is at most this factor squared times the larger
+    /// of the two (a re-observation merges; a neighbouring patch does not).
+    pub world_gmm_growth: f32,
 }
 
 impl Default for Params {
@@ -313,6 +325,10 @@ impl Default for Params {
             alpha_s: 0.35,
             track_max_missed: 10,
             track_scale_gate: 1.5,
+            world_plane_angle_deg: 10.0,
+            world_plane_offset: 0.05,
+            world_gmm_gate: 9.0,
+            world_gmm_growth: 1.25,
         }
     }
 }
@@ -404,6 +420,10 @@ impl Params {
         check(unit(self.alpha_r), "alpha_r")?;
         check(unit(self.alpha_s), "alpha_s")?;
         check(self.track_scale_gate.is_finite() && self.track_scale_gate >= 1.0, "track_scale_gate")?;
+        check(pos(self.world_plane_angle_deg) && self.world_plane_angle_deg < 90.0, "world_plane_angle_deg")?;
+        check(pos(self.world_plane_offset), "world_plane_offset")?;
+        check(self.world_gmm_gate.is_finite() && self.world_gmm_gate >= 0.0, "world_gmm_gate")?;
+        check(self.world_gmm_growth.is_finite() && self.world_gmm_growth >= 1.0, "world_gmm_growth")?;
         Ok(())
     }
 }

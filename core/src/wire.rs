@@ -241,7 +241,7 @@ pub fn encode_streaming(
                 return;
             }
             let written = match (kind, p) {
-                (0, Primitive::Plane(pl)) => write_plane(pl, scratch),
+                (0, Primitive::Plane(pl)) => write_plane::<MAX_PLANE_BITS>(pl, scratch),
                 (1, Primitive::Sq(s)) => write_sq(s, scratch),
                 (2, Primitive::Gmm(g)) => write_gmm(g, scratch),
                 _ => Ok(0),
@@ -254,15 +254,17 @@ pub fn encode_streaming(
     Ok(total)
 }
 
-fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
+/// Writes a plane whose occupied box holds at most `BITS × 8` cells (a frame plane: [`MAX_PLANE_BITS`]; a
+/// world plane: [`MAX_WORLD_PLANE_BITS`]).
+fn write_plane<const BITS: usize>(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
     // Crop the cells to their occupied box and code them both ways: a bitmap row by row, and run lengths
     // (given up once they are as long as the bitmap); the shorter goes on the wire.
-    let mut bits = [0u8; MAX_PLANE_BITS];
-    let mut runs = [0u8; MAX_PLANE_BITS];
+    let mut bits = [0u8; BITS];
+    let mut runs = [0u8; BITS];
     let (a0, b0, width, height) = match p.cells.occupied_box() {
         Some((i0, j0, i1, j1)) => {
             let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
-            if w * h > MAX_PLANE_CELLS {
+            if w * h > BITS * 8 {
                 return Err(WireError::BadValue("plane cells"));
             }
             p.cells.for_each_set(|i, j| {
@@ -281,7 +283,7 @@ fn write_plane(p: &MapPlane<'_>, out: &mut [u8]) -> Result<usize, WireError> {
     let n_bytes = cells.div_ceil(8);
     let bitmap = bits.get(..n_bytes).unwrap_or(&[]);
     let n_runs = run_lengths(bitmap, cells, runs.get_mut(..n_bytes).unwrap_or(&mut []));
-    let mut edges = [0u8; MAX_PLANE_BITS];
+    let mut edges = [0u8; BITS];
     let limit = n_runs.unwrap_or(n_bytes).min(n_bytes);
     let n_edges =
         crate::cells::encode_edges(bitmap, width as usize, height as usize, edges.get_mut(..limit).unwrap_or(&mut []));
@@ -350,10 +352,11 @@ fn take<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<(T, &'a [u8]), WireEr
     })
 }
 
-fn plane_of<'a>(w: WirePlane<'a>) -> Result<MapPlane<'a>, WireError> {
+/// A decoded plane whose occupied box holds at most `max_cells` cells.
+fn plane_of(w: WirePlane<'_>, max_cells: usize) -> Result<MapPlane<'_>, WireError> {
     let cells = w.width as usize * w.height as usize;
     // The box bound comes first: it also bounds the work of checking the coded cells.
-    if cells > MAX_PLANE_CELLS {
+    if cells > max_cells {
         return Err(WireError::BadValue("plane cells"));
     }
     let coding = match w.coding {
@@ -443,7 +446,7 @@ fn walk<'a>(body: &'a [u8], mut f: Option<&mut dyn FnMut(Primitive<'a>)>) -> Res
     for _ in 0..header.planes {
         let (w, r): (WirePlane<'a>, _) = take(rest)?;
         rest = r;
-        let p = plane_of(w)?;
+        let p = plane_of(w, MAX_PLANE_CELLS)?;
         if let Some(f) = f.as_mut() {
             f(Primitive::Plane(p));
         }
@@ -476,4 +479,298 @@ pub fn decode<'a>(bytes: &'a [u8], mut f: impl FnMut(Primitive<'a>)) -> Result<H
     let body = checked_body(bytes)?;
     walk(body, None)?;
     walk(body, Some(&mut f))
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// World maps and their delta stream.
+//
+// A world record is one world primitive with its stable id: `kind` (u8: 0 plane, 1 superquadric, 2 Gaussian),
+// `id` (u32 varint), then the primitive's postcard struct as in a frame map (a world plane's occupied box may
+// hold up to [`MAX_WORLD_PLANE_CELLS`] cells). A world map (`world.bin`) is a [`WorldHeader`], its records in
+// (kind, id) order, and a CRC-32. A delta is a [`DeltaHeader`], the records created or changed since the last
+// delta (same order), the (kind, id) pairs removed, and a CRC-32. Applying every delta in order to an empty
+// record set and writing the set out with [`encode_world_records`] gives the sender's `world.bin` byte for byte,
+// because a record's bytes are the same wherever they appear.
+
+/// First two bytes of a world map.
+pub const WORLD_MAGIC: [u8; 2] = *b"MW";
+/// First two bytes of a world-map delta.
+pub const DELTA_MAGIC: [u8; 2] = *b"MD";
+/// The world-map and delta format version this code writes and reads.
+pub const WORLD_VERSION: u8 = 1;
+/// Largest cropped world-plane bitmap, bytes (a 128 × 128-cell world grid).
+pub const MAX_WORLD_PLANE_BITS: usize = crate::world::WORLD_GRID_BYTES;
+/// Most cells of a world plane on the wire.
+pub const MAX_WORLD_PLANE_CELLS: usize = MAX_WORLD_PLANE_BITS * 8;
+/// Largest world record, bytes: the scratch a world or delta encode needs.
+pub const MAX_WORLD_RECORD_BYTES: usize = MAX_WORLD_PLANE_BITS + 112;
+
+/// The header of a world map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WorldHeader {
+    /// [`WORLD_MAGIC`].
+    pub magic: [u8; 2],
+    /// [`WORLD_VERSION`].
+    pub version: u8,
+    /// The last frame integrated.
+    pub frame: u32,
+    /// Records that follow.
+    pub records: u32,
+}
+
+/// The header of a world-map delta.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DeltaHeader {
+    /// [`DELTA_MAGIC`].
+    pub magic: [u8; 2],
+    /// [`WORLD_VERSION`].
+    pub version: u8,
+    /// The frame whose integration this delta carries.
+    pub frame: u32,
+    /// Records created or changed.
+    pub upserts: u32,
+    /// (kind, id) pairs removed.
+    pub removals: u32,
+}
+
+/// Kind byte of a world record holding a plane.
+pub const KIND_PLANE: u8 = 0;
+/// Kind byte of a world record holding a superquadric.
+pub const KIND_SQ: u8 = 1;
+/// Kind byte of a world record holding a Gaussian.
+pub const KIND_GMM: u8 = 2;
+
+/// The kind byte of a primitive.
+pub fn kind_of(p: &Primitive<'_>) -> u8 {
+    match p {
+        Primitive::Plane(_) => KIND_PLANE,
+        Primitive::Sq(_) => KIND_SQ,
+        Primitive::Gmm(_) => KIND_GMM,
+    }
+}
+
+/// Writes the world record of primitive `p` with id `id` into `out`; returns the bytes written.
+pub fn write_world_record(id: u32, p: &Primitive<'_>, out: &mut [u8]) -> Result<usize, WireError> {
+    let head = postcard::to_slice(&(kind_of(p), id), out).map_err(|_| WireError::BufferTooSmall)?.len();
+    let rest = out.get_mut(head..).ok_or(WireError::BufferTooSmall)?;
+    let body = match p {
+        Primitive::Plane(pl) => write_plane::<MAX_WORLD_PLANE_BITS>(pl, rest),
+        Primitive::Sq(s) => write_sq(s, rest),
+        Primitive::Gmm(g) => write_gmm(g, rest),
+    }?;
+    Ok(head + body)
+}
+
+/// One decoded world record: its kind, id, bytes (exactly as on the wire) and primitive.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorldRecord<'a> {
+    /// [`KIND_PLANE`], [`KIND_SQ`] or [`KIND_GMM`].
+    pub kind: u8,
+    /// World id, unique over the world map's lifetime.
+    pub id: u32,
+    /// The record's bytes.
+    pub bytes: &'a [u8],
+    /// The primitive (world frame).
+    pub primitive: Primitive<'a>,
+}
+
+/// Parses one world record from the front of `bytes`; returns it and the rest.
+fn take_world_record(bytes: &[u8]) -> Result<(WorldRecord<'_>, &[u8]), WireError> {
+    let ((kind, id), rest): ((u8, u32), _) = take(bytes)?;
+    let (primitive, rest) = match kind {
+        KIND_PLANE => {
+            let (w, r): (WirePlane<'_>, _) = take(rest)?;
+            (Primitive::Plane(plane_of(w, MAX_WORLD_PLANE_CELLS)?), r)
+        }
+        KIND_SQ => {
+            let (w, r): (WireSq, _) = take(rest)?;
+            (Primitive::Sq(sq_of(w)?), r)
+        }
+        KIND_GMM => {
+            let (w, r): (WireGmm, _) = take(rest)?;
+            (Primitive::Gmm(gmm_of(w)?), r)
+        }
+        _ => return Err(WireError::BadValue("record kind")),
+    };
+    let used = bytes.len() - rest.len();
+    Ok((WorldRecord { kind, id, bytes: bytes.get(..used).unwrap_or(&[]), primitive }, rest))
+}
+
+/// CRC-32 running sum and byte count of a stream being written.
+struct Emitter<F: FnMut(&[u8]) -> Result<(), WireError>> {
+    crc: u32,
+    total: usize,
+    out: F,
+}
+
+impl<F: FnMut(&[u8]) -> Result<(), WireError>> Emitter<F> {
+    fn new(out: F) -> Self {
+        Emitter { crc: 0xFFFF_FFFF, total: 0, out }
+    }
+
+    fn emit(&mut self, bytes: &[u8]) -> Result<(), WireError> {
+        self.crc = crc32_update(self.crc, bytes);
+        self.total += bytes.len();
+        (self.out)(bytes)
+    }
+
+    /// Writes the CRC-32 of everything emitted; returns the bytes of the whole stream.
+    fn finish(mut self) -> Result<usize, WireError> {
+        let crc = !self.crc;
+        self.emit(&crc.to_le_bytes())?;
+        Ok(self.total)
+    }
+}
+
+/// Ordered (kind, id) check of a record stream: records must come in strictly increasing (kind, id) order.
+fn in_order(previous: &mut Option<(u8, u32)>, kind: u8, id: u32) -> Result<(), WireError> {
+    if previous.is_some_and(|p| p >= (kind, id)) {
+        return Err(WireError::BadValue("record order"));
+    }
+    *previous = Some((kind, id));
+    Ok(())
+}
+
+/// Writes a world map of frame `frame` through `out` from its records: `records` is called twice (to count,
+/// then to write) and must feed `(kind, id, record bytes)` in strictly increasing (kind, id) order, the same
+/// both times. The sender ([`crate::world::WorldMap::encode_streaming`]) and a receiver that holds the records
+/// of a delta stream both write their map with this function, which is what makes them byte-identical.
+pub fn encode_world_records(
+    frame: u32,
+    mut records: impl FnMut(&mut dyn FnMut(u8, u32, &[u8]) -> Result<(), WireError>) -> Result<(), WireError>,
+    scratch: &mut [u8],
+    out: impl FnMut(&[u8]) -> Result<(), WireError>,
+) -> Result<usize, WireError> {
+    let mut n = 0u32;
+    let mut order = None;
+    records(&mut |kind, id, _| {
+        in_order(&mut order, kind, id)?;
+        n = n.checked_add(1).ok_or(WireError::TooManyPrimitives)?;
+        Ok(())
+    })?;
+    let header = WorldHeader { magic: WORLD_MAGIC, version: WORLD_VERSION, frame, records: n };
+    let mut emitter = Emitter::new(out);
+    emitter.emit(postcard::to_slice(&header, scratch).map_err(|_| WireError::BufferTooSmall)?)?;
+    let mut written = 0u32;
+    records(&mut |_, _, bytes| {
+        written += 1;
+        emitter.emit(bytes)
+    })?;
+    if written != n {
+        return Err(WireError::BadValue("records changed between passes"));
+    }
+    emitter.finish()
+}
+
+/// Writes a delta of frame `frame` through `out`: `upserts` feeds `(kind, id, record bytes)` of the records
+/// created or changed, in strictly increasing (kind, id) order, `removals` the (kind, id) pairs removed; both
+/// are called twice (count, write).
+pub fn encode_delta_records(
+    frame: u32,
+    mut upserts: impl FnMut(&mut dyn FnMut(u8, u32, &[u8]) -> Result<(), WireError>) -> Result<(), WireError>,
+    mut removals: impl FnMut(&mut dyn FnMut(u8, u32) -> Result<(), WireError>) -> Result<(), WireError>,
+    scratch: &mut [u8],
+    out: impl FnMut(&[u8]) -> Result<(), WireError>,
+) -> Result<usize, WireError> {
+    let (mut n_up, mut n_rm) = (0u32, 0u32);
+    let mut order = None;
+    upserts(&mut |kind, id, _| {
+        in_order(&mut order, kind, id)?;
+        n_up = n_up.checked_add(1).ok_or(WireError::TooManyPrimitives)?;
+        Ok(())
+    })?;
+    removals(&mut |_, _| {
+        n_rm = n_rm.checked_add(1).ok_or(WireError::TooManyPrimitives)?;
+        Ok(())
+    })?;
+    let header = DeltaHeader { magic: DELTA_MAGIC, version: WORLD_VERSION, frame, upserts: n_up, removals: n_rm };
+    let mut emitter = Emitter::new(out);
+    emitter.emit(postcard::to_slice(&header, scratch).map_err(|_| WireError::BufferTooSmall)?)?;
+    upserts(&mut |_, _, bytes| emitter.emit(bytes))?;
+    removals(&mut |kind, id| {
+        let mut pair = [0u8; 8];
+        let bytes = postcard::to_slice(&(kind, id), &mut pair).map_err(|_| WireError::BufferTooSmall)?;
+        emitter.emit(bytes)
+    })?;
+    emitter.finish()
+}
+
+/// Validates a whole world map (checksum, header, every record, their order, no trailing bytes) and only then
+/// calls `f` for each record in order.
+pub fn decode_world<'a>(bytes: &'a [u8], mut f: impl FnMut(WorldRecord<'a>)) -> Result<WorldHeader, WireError> {
+    let body = checked_body(bytes)?;
+    let (header, records): (WorldHeader, _) = take(body)?;
+    if header.magic != WORLD_MAGIC {
+        return Err(WireError::BadMagic);
+    }
+    if header.version != WORLD_VERSION {
+        return Err(WireError::WrongVersion(header.version));
+    }
+    for pass in 0..2 {
+        let (mut rest, mut order) = (records, None);
+        for _ in 0..header.records {
+            let (r, tail) = take_world_record(rest)?;
+            in_order(&mut order, r.kind, r.id)?;
+            rest = tail;
+            if pass == 1 {
+                f(r);
+            }
+        }
+        if !rest.is_empty() {
+            return Err(WireError::TrailingBytes);
+        }
+    }
+    Ok(header)
+}
+
+/// One change a delta carries.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DeltaChange<'a> {
+    /// A record created or changed: the receiver stores its bytes under (kind, id).
+    Upsert(WorldRecord<'a>),
+    /// The record (kind, id) was removed.
+    Remove {
+        /// Kind byte.
+        kind: u8,
+        /// World id.
+        id: u32,
+    },
+}
+
+/// Validates a whole delta (checksum, header, every record and removal, no trailing bytes) and only then calls
+/// `f` for each change: the upserts in order, then the removals.
+pub fn decode_delta<'a>(bytes: &'a [u8], mut f: impl FnMut(DeltaChange<'a>)) -> Result<DeltaHeader, WireError> {
+    let body = checked_body(bytes)?;
+    let (header, changes): (DeltaHeader, _) = take(body)?;
+    if header.magic != DELTA_MAGIC {
+        return Err(WireError::BadMagic);
+    }
+    if header.version != WORLD_VERSION {
+        return Err(WireError::WrongVersion(header.version));
+    }
+    for pass in 0..2 {
+        let (mut rest, mut order) = (changes, None);
+        for _ in 0..header.upserts {
+            let (r, tail) = take_world_record(rest)?;
+            in_order(&mut order, r.kind, r.id)?;
+            rest = tail;
+            if pass == 1 {
+                f(DeltaChange::Upsert(r));
+            }
+        }
+        for _ in 0..header.removals {
+            let ((kind, id), tail): ((u8, u32), _) = take(rest)?;
+            if kind > KIND_GMM {
+                return Err(WireError::BadValue("record kind"));
+            }
+            rest = tail;
+            if pass == 1 {
+                f(DeltaChange::Remove { kind, id });
+            }
+        }
+        if !rest.is_empty() {
+            return Err(WireError::TrailingBytes);
+        }
+    }
+    Ok(header)
 }

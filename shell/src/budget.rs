@@ -24,3 +24,22 @@ pub fn table() -> String {
     ));
     s
 }
+
+/// The world-map storage table (`memory_budget.md`): each pool of the `mcu` and `host` world profiles.
+pub fn world_table() -> String {
+    use m2smap_core::world::{HostWorld, McuWorld, WorldGaussian, WorldObject, WorldPlane};
+    use std::mem::size_of;
+    let mut s = String::from("| pool | mcu capacity | host capacity | bytes/element | mcu bytes | host bytes |\n");
+    s.push_str("|---|---:|---:|---:|---:|---:|\n");
+    let pools = [
+        ("world planes", McuWorld::PLANES, HostWorld::PLANES, size_of::<WorldPlane>()),
+        ("world objects", McuWorld::OBJECTS, HostWorld::OBJECTS, size_of::<WorldObject>()),
+        ("world Gaussians", McuWorld::GAUSSIANS, HostWorld::GAUSSIANS, size_of::<WorldGaussian>()),
+        ("pending removals", McuWorld::REMOVALS, HostWorld::REMOVALS, size_of::<(u8, u32)>()),
+    ];
+    for (name, mcu, host, size) in pools {
+        s.push_str(&format!("| {name} | {mcu} | {host} | {size} | {} | {} |\n", mcu * size, host * size));
+    }
+    s.push_str(&format!("| **total** | | | | **{}** | **{}** |\n", McuWorld::BYTES, HostWorld::BYTES));
+    s
+}

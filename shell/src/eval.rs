@@ -102,7 +102,7 @@ pub struct ReconstructionMetrics {
 }
 
 /// RMS of nearest-neighbour distances from `queries` to `cloud` (kd-tree over `cloud`); `None` when either is empty.
-fn rms_nearest(queries: &[[f32; 3]], cloud: &[[f32; 3]]) -> Option<f64> {
+pub fn rms_nearest(queries: &[[f32; 3]], cloud: &[[f32; 3]]) -> Option<f64> {
     if queries.is_empty() || cloud.is_empty() {
         return None;
     }

@@ -14,6 +14,12 @@ pub fn wire_decode(data: &[u8]) {
         assert!(n < 10_000_000);
     }
     let _ = m2smap_core::snapshot::read(data, 64, |_| {}, |_| {});
+    // World maps and deltas: a receiver applies what decodes.
+    let mut receiver = crate::world::Receiver::default();
+    if receiver.apply(data).is_ok() {
+        assert!(receiver.world_bytes().is_ok());
+    }
+    let _ = m2smap_core::wire::decode_world(data, |r| r.primitive.for_each_sample(|_| n += 1));
 }
 
 /// A little-endian reader over fuzz bytes that yields zeros once they run out.

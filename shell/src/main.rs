@@ -149,6 +149,10 @@ enum Command {
         /// Fraction of frames hit by --faults.
         #[arg(long, default_value_t = 0.25)]
         fault_rate: f32,
+        /// Also fuse every frame into one world map (needs camera poses) and write DIR/world.bin, world.ply,
+        /// deltas.bin (the delta stream), world.jsonl (per frame) and world_summary.json.
+        #[arg(long, value_name = "DIR")]
+        world: Option<PathBuf>,
     },
     /// Write a synthetic scene with ground truth as a TUM folder (rgb/, depth/, groundtruth.txt, camera.json,
     /// masks/ and the exact gt/ with objects.json).
@@ -292,7 +296,7 @@ fn main() -> ExitCode {
 
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { dataset, out, frames, how, masks, segmenter, faults, fault_rate } => {
+        Command::Run { dataset, out, frames, how, masks, segmenter, faults, fault_rate, world } => {
             let MappingArgs { variant, config, camera, profile, downscale } = how;
             let variant = match variant {
                 Some(name) => Some(parse_variant(&name)?),
@@ -311,6 +315,7 @@ fn execute(cli: Cli) -> Result<()> {
                 segmenter,
                 faults: faults.map(|seed| (seed, fault_rate)),
                 progress: std::io::stderr().is_terminal(),
+                world: world.clone(),
             };
             let s = run(&opts)?;
             println!(
@@ -342,6 +347,22 @@ fn execute(cli: Cli) -> Result<()> {
                 out.join("summary.json").display()
             );
             println!("camera: {}", s.camera);
+            if let (Some(w), Some(dir)) = (&s.world, &world) {
+                println!(
+                    "world map: {} planes, {} SQs, {} GMMs, {} B; deltas {:.0} B/frame ({:.2} of the frame maps); \
+                     G2R {:.4} m, R2G {:.4} m against {} observed points -> {}",
+                    w.planes,
+                    w.sqs,
+                    w.gmms,
+                    w.world_bytes,
+                    w.delta_bytes_mean,
+                    w.delta_to_frame_map,
+                    w.g2r_rmse_m.unwrap_or(0.0),
+                    w.r2g_rmse_m.unwrap_or(0.0),
+                    w.observed_points,
+                    dir.join("world_summary.json").display()
+                );
+            }
             // Overflow drops data (points, voxels, Gaussians …): say which pools, so it is never silent.
             let full: Vec<String> = s
                 .pools
@@ -481,6 +502,8 @@ fn execute(cli: Cli) -> Result<()> {
         }
         Command::Budget => {
             print!("{}", budget::table());
+            println!("\nWorld map (`m2smap_core::world`), a separate caller-owned storage:\n");
+            print!("{}", budget::world_table());
             Ok(())
         }
     }

@@ -108,6 +108,7 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
             segmenter,
             faults: None,
             progress: false,
+            world: None,
         };
         let mut runs = Vec::new();
         for v in Variant::ALL {

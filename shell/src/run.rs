@@ -64,6 +64,8 @@ pub struct RunOptions {
     pub faults: Option<(u32, f32)>,
     /// Show a progress bar (on a terminal).
     pub progress: bool,
+    /// `--world DIR`: also build the world map over the sequence and write it into DIR ([`crate::world`]).
+    pub world: Option<PathBuf>,
 }
 
 /// Primitive counts of a frame or their means (null until the stage producing them exists).
@@ -229,6 +231,9 @@ pub struct FrameRecord {
 /// `summary.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
+    /// The world map of `run --world` (also in `DIR/world_summary.json`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub world: Option<crate::world::WorldSummary>,
     /// Frames mapped.
     pub frames: usize,
     /// Frames the core rejected (fault injection).
@@ -523,12 +528,16 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
         params.variant = v;
     }
     fs::create_dir_all(&opts.out).with_context(|| format!("{}: cannot create", opts.out.display()))?;
-    let records = match opts.profile {
+    if opts.world.is_some() && dataset.frames.iter().take(opts.frames.unwrap_or(usize::MAX)).any(|f| f.pose.is_none()) {
+        return Err(anyhow!("{}: --world needs a camera pose for every frame", opts.dataset.display()));
+    }
+    let (records, world) = match opts.profile {
         ProfileChoice::Host => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<HostStorage>())?,
         ProfileChoice::Mcu => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<McuStorage>())?,
         ProfileChoice::Tiny => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<TinyStorage>())?,
     };
     let mut summary = summarise(&records, params.variant, opts.profile);
+    summary.world = world;
     let c = &dataset.camera;
     let subsampled = match dataset.downscale {
         1 => String::new(),
@@ -549,8 +558,13 @@ fn replay<P: Profile + Zeroable>(
     params: Params,
     opts: &RunOptions,
     storage: &mut P,
-) -> Result<Vec<FrameRecord>> {
+) -> Result<(Vec<FrameRecord>, Option<crate::world::WorldSummary>)> {
     let mut mapper = Mapper::new(storage, params).map_err(|e| anyhow!("parameters: {e}"))?;
+    let mut world_storage = opts.world.as_ref().map(|_| crate::world::host_storage());
+    let mut world = match (opts.world.as_deref(), world_storage.as_deref_mut()) {
+        (Some(dir), Some(storage)) => Some(crate::world::WorldRun::create(dir, storage)?),
+        _ => None,
+    };
     let masks_dir = mask_dir(&dataset.root, opts.masks.as_deref());
     if let Some(d) = masks_dir.as_ref().filter(|d| !d.is_dir()) {
         return Err(anyhow!("{}: mask folder does not exist", d.display()));
@@ -641,6 +655,18 @@ fn replay<P: Profile + Zeroable>(
                 .encode_map(&mut wire_buf)
                 .map_err(|e| anyhow!("{}: encoding the map: {e}", fref.depth.display()))?;
             let checked = mapper.check(frame, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("{e}"))?;
+            if let (Some(world), Some(pose)) = (world.as_mut(), fref.pose.as_ref()) {
+                let mut observed = Vec::new();
+                mapper.for_each_labelled_point(&checked, |p, _| observed.push(p.xyz));
+                world.add_frame(
+                    index,
+                    &pose.to_core(),
+                    mapper.params(),
+                    payload,
+                    |f| mapper.for_each_primitive(f),
+                    &observed,
+                )?;
+            }
             let w = loaded.width as usize;
             let semantic = eval::semantic_metrics(&mapper, &checked, |u, v| match (&gt, &masks) {
                 (Some(gt), _) => gt.get(v as usize * w + u as usize).copied().unwrap_or(0),
@@ -750,7 +776,8 @@ fn replay<P: Profile + Zeroable>(
     }
     bar.finish_and_clear();
     jsonl.flush().with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
-    Ok(records)
+    let world = world.map(|w| w.finish()).transpose()?;
+    Ok((records, world))
 }
 
 /// Mean of the defined values, `None` when there are none.
@@ -789,6 +816,7 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
         }
     }
     Summary {
+        world: None,
         frames: records.len(),
         frames_rejected: all.iter().filter(|r| r.rejected.is_some()).count(),
         frames_dropped: all.iter().filter(|r| r.fault == Some(Fault::Dropped)).count(),

@@ -1,0 +1,1372 @@
+//! Stage 11 (an m2smap extension beyond the paper): the world map, one map of everything a posed sequence has
+//! seen, in caller-owned pools of fixed capacity, with stable ids and a delta stream for a thin radio link.
+//!
+//! Each frame's map (camera frame) is fused into world-frame primitives ([`WorldMap::integrate`]):
+//! - **planes**: a frame plane joins the world plane whose normal lies within `world_plane_angle_deg` and whose
+//!   surface passes within `world_plane_offset` of the frame plane's centroid (the nearest such); its occupied
+//!   cells are drawn into the world plane's own [`WORLD_GRID`] × [`WORLD_GRID`] grid (2 × 2 points per frame
+//!   cell, so a rotated grid leaves no holes), and its normal and offset are averaged, weighted by support
+//!   points. Otherwise it starts a new world plane. Cells outside the grid are counted, not drawn.
+//! - **objects**: a frame superquadric (its track's smoothed state where the frame's points allow it) moved
+//!   into the world frame updates the world object of its track ([`crate::track`]). A track seen
+//!   for the first time adopts the world object of the same class whose centre lies within max(`d_max`, its
+//!   largest half-axis) and that no track updated this frame — a track that was retired and restarted keeps
+//!   its world object and id. A retired track's object stays in the map, static.
+//! - **Gaussians** (GMMap-style moment matching): a frame Gaussian merges into the world Gaussian with the
+//!   smallest squared Mahalanobis distance d² = Δᵀ(Σ_w + Σ_f + σ₀²I)⁻¹Δ ≤ `world_gmm_gate` (σ₀ = 5 mm) whose
+//!   merged total variance stays within `world_gmm_growth`² of the larger of the two (a re-observation merges,
+//!   a neighbouring patch does not); the merged mean, covariance and support are those of the union of their
+//!   points ([`linalg::Moments::add_gaussian`]). Otherwise it is added; when the pool is full, the world
+//!   Gaussian with the least support (then the one unseen longest) that this frame has not touched is evicted,
+//!   if its support is below the newcomer's; else the newcomer is dropped. Both are counted.
+//!
+//! Pools keep their elements in increasing id order (new ids are appended, removal shifts), so the map and its
+//! deltas are written in (kind, id) order without sorting. Everything is deterministic: the same frames give
+//! the same bytes on a PC and on a Cortex-M7.
+//!
+//! **Published state.** Each world primitive keeps what it has accumulated (running means, merged moments,
+//! new plane cells) apart from what it shows: the map, `world.bin` and the deltas are written from the shown
+//! state only, which follows the accumulated one in steps ([`PUBLISH_ANGLE_DEG`], [`PUBLISH_MOVE_M`],
+//! [`PUBLISH_SHAPE_CHANGE`], [`PUBLISH_CELL_SHARE`]). A re-observation that changes a primitive by less than a
+//! step costs no radio bytes; the shown map is never more than a step behind.
+//!
+//! **Deltas** ([`WorldMap::encode_delta_streaming`]): each primitive remembers the CRC-32 of the record it last
+//! sent; a delta carries the new records, those whose bytes changed, and the (kind, id) of removed ones. A receiver applying every delta in order holds the
+//! sender's records and writes a `world.bin` identical to the sender's ([`crate::wire::encode_world_records`]).
+//! Two different records with the same CRC-32 (a 2⁻³² chance per changed record) would not be sent.
+
+use bytemuck::Zeroable;
+
+use crate::frame::Pose;
+use crate::linalg::{self, Moments, Sym3, Vec3};
+use crate::map::{CellBits, CellCoding, MapGmm, MapPlane, MapSq, Primitive};
+use crate::params::Params;
+use crate::pool::{Bounded, PoolUsage};
+use crate::superquadric::Superquadric;
+use crate::wire::{self, WireError, KIND_GMM, KIND_PLANE, KIND_SQ};
+
+/// Cells per side of a world plane's grid (6.4 m at g_p = 5 cm).
+pub const WORLD_GRID: usize = 128;
+/// Bytes of a world plane's occupancy bitmap.
+pub const WORLD_GRID_BYTES: usize = WORLD_GRID * WORLD_GRID / 8;
+/// Variance added to both covariances in the Gaussian merge test, m² ((5 mm)²: pose and sensor noise).
+pub const MERGE_NOISE_VAR: f32 = 2.5e-5;
+/// A shown superquadric turns to its accumulated orientation once they differ by more than this, degrees.
+pub const PUBLISH_ANGLE_DEG: f32 = 2.0;
+/// A shown plane takes its accumulated normal and offset once they put it more than this far from the
+/// accumulated plane anywhere within its reach, metres.
+pub const PUBLISH_PLANE_M: f32 = 0.01;
+/// A shown primitive moves to its accumulated position once they differ by more than this, metres (a Gaussian:
+/// or by more than a tenth of its largest σ, whichever is larger).
+pub const PUBLISH_MOVE_M: f32 = 0.01;
+/// A shown superquadric or Gaussian takes its accumulated shape once a half-axis (a covariance, in Frobenius
+/// norm) changes by more than this fraction, or its support doubles.
+pub const PUBLISH_SHAPE_CHANGE: f32 = 0.2;
+/// New cells of a world plane are shown once they number more than this share of its shown cells (or the
+/// pending list is full).
+pub const PUBLISH_CELL_SHARE: f32 = 0.15;
+/// A Gaussian whose mean lies within this distance of a world superquadric's surface (or inside it), or of a
+/// world plane it is parallel to, over an occupied cell, is already explained by that primitive, metres.
+pub const EXPLAINED_M: f32 = 0.03;
+/// A world object is shown once its superquadric was seen in this many frames (a fit that no later frame
+/// confirms stays out of the map, and leaves it after `track_max_missed` frames unseen).
+pub const OBJECT_MIN_FRAMES: u16 = 3;
+/// New cells a world plane holds back before showing them.
+pub const PENDING_CELLS: usize = 1024;
+
+/// One world plane: a grid on the plane through `origin` spanned by `e1`, `e2`. World frame, metres.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct WorldPlane {
+    /// World id.
+    pub id: u32,
+    /// Shown grid origin on the plane (the centre of the grid), metres.
+    pub origin: Vec3,
+    /// Shown grid axis e1 (columns of the grid).
+    pub e1: Vec3,
+    /// Shown grid axis e2 (rows).
+    pub e2: Vec3,
+    /// Shown unit normal n = e1 × e2.
+    pub normal: Vec3,
+    /// Shown thickness σ2, metres.
+    pub thickness: f32,
+    /// Shown λ2/λ0.
+    pub eigen_ratio: f32,
+    /// Shown colour.
+    pub colour: [u8; 3],
+    /// Accumulated unit normal: the support-weighted mean of the frames' normals.
+    pub acc_normal: Vec3,
+    /// Accumulated offset d of n · x = d, metres.
+    pub acc_offset: f32,
+    /// Accumulated thickness, λ2/λ0 and colour (support-weighted means).
+    pub acc_thickness: f32,
+    /// Accumulated λ2/λ0.
+    pub acc_ratio: f32,
+    /// Accumulated colour, RGB in [0, 255].
+    pub acc_colour: [f32; 3],
+    /// Support: occupied frame cells summed over the frames it was seen in.
+    pub support: u32,
+    /// Shown occupied cells.
+    pub occupied: u32,
+    /// Farthest centre of a shown or pending cell from the origin, metres.
+    pub reach: f32,
+    /// Cells that fell outside the grid, over its lifetime.
+    pub clipped_cells: u32,
+    /// Frame it was last seen in.
+    pub last_frame: u32,
+    /// CRC-32 of the record last sent in a delta.
+    pub sent_crc: u32,
+    /// 1 once a delta carried it.
+    pub sent: u8,
+    /// Pending cells in use.
+    pub pending_len: u16,
+    /// New cells not shown yet (bit indices into `cells`).
+    pub pending: [u16; PENDING_CELLS],
+    /// Shown occupancy bitmap, row-major, cell (a, b) at bit a + b × [`WORLD_GRID`], a and b offset by half the
+    /// grid.
+    pub cells: [u8; WORLD_GRID_BYTES],
+}
+
+/// One world object: a superquadric in the world frame.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct WorldObject {
+    /// World id.
+    pub id: u32,
+    /// Accumulated: the latest superquadric of its track, world frame.
+    pub sq: Superquadric,
+    /// Shown: the superquadric of the map, world frame.
+    pub shown: MapSq,
+    /// The track that feeds it now (or fed it last).
+    pub track: u16,
+    /// Category label ℓ.
+    pub class: u16,
+    /// Highest detection confidence seen.
+    pub score: f32,
+    /// Frame it was last seen in.
+    pub last_frame: u32,
+    /// Frames it was seen in (saturating); it is shown from [`OBJECT_MIN_FRAMES`] on.
+    pub frames_seen: u16,
+    /// CRC-32 of the record last sent in a delta.
+    pub sent_crc: u32,
+    /// 1 once a delta carried it.
+    pub sent: u8,
+}
+
+impl WorldObject {
+    /// Whether it has been seen often enough to be shown.
+    pub fn is_confirmed(&self) -> bool {
+        self.frames_seen >= OBJECT_MIN_FRAMES
+    }
+}
+
+/// One world Gaussian. World frame, metres.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct WorldGaussian {
+    /// World id.
+    pub id: u32,
+    /// Accumulated mean μ, metres.
+    pub mean: Vec3,
+    /// Accumulated covariance Σ (denominator N − 1), m², `[xx, xy, xz, yy, yz, zz]`.
+    pub covariance: Sym3,
+    /// Accumulated support N over every frame merged into it.
+    pub count: u32,
+    /// Accumulated support-weighted mean colour, RGB in [0, 255].
+    pub colour: [f32; 3],
+    /// Category label ℓ of its best-scored observation.
+    pub class: u16,
+    /// 1 once a delta carried it.
+    pub sent: u8,
+    /// Highest confidence s seen.
+    pub score: f32,
+    /// Frame it was last seen in.
+    pub last_frame: u32,
+    /// CRC-32 of the record last sent in a delta.
+    pub sent_crc: u32,
+    /// The covariance it shows (to compare the accumulated one with).
+    pub shown_covariance: Sym3,
+    /// Shown: the Gaussian of the map.
+    pub shown: MapGmm,
+}
+
+/// Storage of a world map: `P` planes, `O` objects, `G` Gaussians, `R` pending removals (ids removed since the
+/// last delta; an eviction waits for room here, so the receiver never misses one).
+#[derive(Zeroable)]
+#[repr(C)]
+pub struct WorldStorage<const P: usize, const O: usize, const G: usize, const R: usize> {
+    planes: [WorldPlane; P],
+    objects: [WorldObject; O],
+    gaussians: [WorldGaussian; G],
+    removed: [(u8, u32); R],
+}
+
+impl<const P: usize, const O: usize, const G: usize, const R: usize> WorldStorage<P, O, G, R> {
+    /// Bytes of the storage itself.
+    pub const BYTES: usize = core::mem::size_of::<Self>();
+    /// Planes it holds.
+    pub const PLANES: usize = P;
+    /// Objects it holds.
+    pub const OBJECTS: usize = O;
+    /// Gaussians it holds.
+    pub const GAUSSIANS: usize = G;
+    /// Pending removals it holds.
+    pub const REMOVALS: usize = R;
+}
+
+/// World map for the `mcu` profile: 4 planes, 16 objects, 256 Gaussians.
+pub type McuWorld = WorldStorage<4, 16, 256, 64>;
+/// World map for the `host` profile: 32 planes, 128 objects, 4 096 Gaussians.
+pub type HostWorld = WorldStorage<32, 128, 4096, 1024>;
+
+/// What one [`WorldMap::integrate`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WorldStats {
+    /// Frame planes merged into a world plane.
+    pub planes_merged: u32,
+    /// World planes created.
+    pub planes_created: u32,
+    /// Frame planes dropped: the plane pool was full.
+    pub planes_dropped: u32,
+    /// World planes whose shown normal and offset took a step.
+    pub planes_moved: u32,
+    /// World planes whose pending cells were shown.
+    pub planes_grown: u32,
+    /// Frame cells outside every world grid (2 × 2 points per cell, each counted).
+    pub cells_clipped: u32,
+    /// Superquadrics that updated a world object.
+    pub objects_updated: u32,
+    /// World objects created.
+    pub objects_created: u32,
+    /// Superquadrics dropped: the object pool was full of objects seen this frame.
+    pub objects_dropped: u32,
+    /// World objects evicted (unseen longest) to make room.
+    pub objects_evicted: u32,
+    /// Frame Gaussians merged into a world Gaussian.
+    pub gmms_merged: u32,
+    /// World Gaussians created.
+    pub gmms_created: u32,
+    /// World Gaussians evicted to make room.
+    pub gmms_evicted: u32,
+    /// Frame Gaussians dropped: no room and nothing weaker to evict.
+    pub gmms_dropped: u32,
+    /// Frame Gaussians not added, and world Gaussians removed, because a world plane or superquadric explains
+    /// them.
+    pub gmms_explained: u32,
+}
+
+/// Why a frame could not be integrated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WorldError {
+    /// The pose is not a finite rigid transform.
+    BadPose,
+    /// The frame number is not after the last one integrated.
+    FrameOutOfOrder,
+}
+
+impl core::fmt::Display for WorldError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            WorldError::BadPose => write!(f, "camera pose is not a finite rigid transform"),
+            WorldError::FrameOutOfOrder => write!(f, "frame number is not after the last integrated frame"),
+        }
+    }
+}
+
+/// The world map over borrowed [`WorldStorage`].
+pub struct WorldMap<'s> {
+    planes: Bounded<'s, WorldPlane>,
+    objects: Bounded<'s, WorldObject>,
+    gaussians: Bounded<'s, WorldGaussian>,
+    removed: Bounded<'s, (u8, u32)>,
+    next_id: u32,
+    frame: Option<u32>,
+    g_p: f32,
+}
+
+/// A frame Gaussian in the world frame.
+struct Observed {
+    mean: Vec3,
+    covariance: Sym3,
+    count: u32,
+    colour: [f32; 3],
+    class: u16,
+    score: f32,
+}
+
+impl<'s> WorldMap<'s> {
+    /// An empty world map over `storage`.
+    pub fn new<const P: usize, const O: usize, const G: usize, const R: usize>(
+        storage: &'s mut WorldStorage<P, O, G, R>,
+    ) -> Self {
+        WorldMap {
+            planes: Bounded::new(&mut storage.planes),
+            objects: Bounded::new(&mut storage.objects),
+            gaussians: Bounded::new(&mut storage.gaussians),
+            removed: Bounded::new(&mut storage.removed),
+            next_id: 0,
+            frame: None,
+            g_p: 0.05,
+        }
+    }
+
+    /// The last frame integrated.
+    pub fn frame(&self) -> Option<u32> {
+        self.frame
+    }
+
+    /// World planes.
+    pub fn planes(&self) -> &[WorldPlane] {
+        self.planes.as_slice()
+    }
+
+    /// World objects.
+    pub fn objects(&self) -> &[WorldObject] {
+        self.objects.as_slice()
+    }
+
+    /// World Gaussians.
+    pub fn gaussians(&self) -> &[WorldGaussian] {
+        self.gaussians.as_slice()
+    }
+
+    /// Shown planes, superquadrics and Gaussians (the primitives of the map).
+    pub fn primitive_counts(&self) -> [usize; 3] {
+        let confirmed = self.objects.as_slice().iter().filter(|o| o.is_confirmed()).count();
+        [self.planes.len(), confirmed, self.gaussians.len()]
+    }
+
+    /// Pool use of planes, objects, Gaussians and pending removals (peaks over the map's lifetime).
+    pub fn usage(&self) -> [PoolUsage; 4] {
+        [self.planes.usage(), self.objects.usage(), self.gaussians.usage(), self.removed.usage()]
+    }
+
+    /// Fuses the map of frame `frame` (camera frame; `primitives` feeds every primitive, as
+    /// [`crate::Mapper::for_each_primitive`] does) into the world map, with its camera-to-world `pose`. A
+    /// frame with a bad pose or an old frame number is refused and changes nothing.
+    pub fn integrate(
+        &mut self,
+        frame: u32,
+        pose: &Pose,
+        params: &Params,
+        mut primitives: impl FnMut(&mut dyn FnMut(&Primitive<'_>)),
+    ) -> Result<WorldStats, WorldError> {
+        if !pose.is_valid() {
+            return Err(WorldError::BadPose);
+        }
+        if self.frame.is_some_and(|f| frame <= f) {
+            return Err(WorldError::FrameOutOfOrder);
+        }
+        self.frame = Some(frame);
+        self.g_p = params.g_p;
+        let mut stats = WorldStats::default();
+        primitives(&mut |p| match p.moved(&pose.rotation, pose.translation) {
+            Primitive::Plane(pl) => self.add_plane(&pl, frame, params, &mut stats),
+            Primitive::Sq(s) => self.add_object(&s, frame, params, &mut stats),
+            Primitive::Gmm(g) => self.add_gaussian(&g, frame, params, &mut stats),
+        });
+        // Objects never confirmed and unseen for `track_max_missed` frames were passing fits: they leave (they
+        // were never shown, so no delta mentions them).
+        let mut i = 0;
+        while i < self.objects.len() {
+            let stale = self
+                .objects
+                .get(i)
+                .is_some_and(|o| !o.is_confirmed() && frame.saturating_sub(o.last_frame) > params.track_max_missed);
+            if stale {
+                remove_at(&mut self.objects, i);
+            } else {
+                i += 1;
+            }
+        }
+        // World Gaussians that a plane or superquadric now explains (one that appeared or grew this frame)
+        // leave the map.
+        let mut i = 0;
+        while i < self.gaussians.len() {
+            let explained = self.gaussians.get(i).is_some_and(|g| self.explains(g.mean, &g.covariance, params));
+            if explained && self.note_removal(KIND_GMM, i) {
+                remove_at(&mut self.gaussians, i);
+                stats.gmms_explained += 1;
+            } else {
+                i += 1;
+            }
+        }
+        Ok(stats)
+    }
+
+    fn take_id(&mut self) -> u32 {
+        let id = self.next_id;
+        self.next_id = self.next_id.wrapping_add(1);
+        id
+    }
+
+    /// Adds frame plane `p`, already in the world frame.
+    fn add_plane(&mut self, p: &MapPlane<'_>, frame: u32, params: &Params, stats: &mut WorldStats) {
+        let n = linalg::column(&p.rotation, 2);
+        let c = p.centroid;
+        let cos_min = libm::cosf(params.world_plane_angle_deg.to_radians());
+        let mut best: Option<(usize, f32)> = None;
+        for (i, w) in self.planes.as_slice().iter().enumerate() {
+            let offset = libm::fabsf(linalg::dot(w.acc_normal, c) - w.acc_offset);
+            if libm::fabsf(linalg::dot(w.acc_normal, n)) >= cos_min
+                && offset <= params.world_plane_offset
+                && best.is_none_or(|(_, o)| offset < o)
+            {
+                best = Some((i, offset));
+            }
+        }
+        let index = match best {
+            Some((i, _)) => {
+                stats.planes_merged += 1;
+                i
+            }
+            None => {
+                let (e1, e2) = (linalg::column(&p.rotation, 0), linalg::column(&p.rotation, 1));
+                let normal = linalg::normalize_or(linalg::cross(e1, e2), n);
+                let mut plane = WorldPlane::zeroed();
+                plane.id = self.next_id;
+                plane.origin = c;
+                plane.e1 = e1;
+                plane.e2 = e2;
+                plane.normal = normal;
+                plane.thickness = p.sigmas[2];
+                plane.eigen_ratio = p.eigen_ratio;
+                plane.colour = p.colour;
+                plane.acc_normal = normal;
+                plane.acc_offset = linalg::dot(normal, c);
+                plane.acc_thickness = p.sigmas[2];
+                plane.acc_ratio = p.eigen_ratio;
+                plane.acc_colour = p.colour.map(|x| x as f32);
+                match self.planes.push(plane) {
+                    Some(i) => {
+                        self.take_id();
+                        stats.planes_created += 1;
+                        i
+                    }
+                    None => {
+                        stats.planes_dropped += 1;
+                        return;
+                    }
+                }
+            }
+        };
+        let Some(w) = self.planes.get_mut(index) else { return };
+        // Accumulate: support-weighted means, weighted by occupied cells (a map plane carries no point
+        // count); the frame's normal turned to agree with the world's.
+        let (wa, wb) = (w.support as f32, p.cells.count().max(1) as f32);
+        let n = if linalg::dot(n, w.acc_normal) < 0.0 { linalg::scale(n, -1.0) } else { n };
+        let k = wb / (wa + wb);
+        w.acc_normal = linalg::normalize_or(linalg::add(linalg::scale(w.acc_normal, 1.0 - k), linalg::scale(n, k)), n);
+        w.acc_offset += (linalg::dot(w.acc_normal, c) - w.acc_offset) * k;
+        w.acc_thickness += (p.sigmas[2] - w.acc_thickness) * k;
+        w.acc_ratio += (p.eigen_ratio - w.acc_ratio) * k;
+        for (acc, x) in w.acc_colour.iter_mut().zip(p.colour) {
+            *acc += (x as f32 - *acc) * k;
+        }
+        w.support = w.support.saturating_add(wb as u32);
+        w.last_frame = frame;
+        // Show the new orientation and offset once they are a step away: e1 projected onto the new plane, e2
+        // completing the frame, the origin moved onto it (cells keep their indices).
+        // A step: the shown plane is more than PUBLISH_PLANE_M off the accumulated one anywhere within its
+        // reach (offset at the origin plus the tilt over the reach).
+        let tilt = linalg::norm(linalg::cross(w.normal, w.acc_normal));
+        let offset = libm::fabsf(linalg::dot(w.acc_normal, w.origin) - w.acc_offset);
+        if offset + tilt * w.reach > PUBLISH_PLANE_M {
+            stats.planes_moved += 1;
+            let normal = w.acc_normal;
+            let e1 = linalg::normalize_or(linalg::sub(w.e1, linalg::scale(normal, linalg::dot(w.e1, normal))), w.e1);
+            w.e2 = linalg::cross(normal, e1);
+            w.e1 = e1;
+            w.normal = normal;
+            w.origin = linalg::add(w.origin, linalg::scale(normal, w.acc_offset - linalg::dot(normal, w.origin)));
+            w.thickness = w.acc_thickness;
+            w.eigen_ratio = w.acc_ratio;
+            w.colour = w.acc_colour.map(|x| libm::roundf(x.clamp(0.0, 255.0)) as u8);
+        }
+        // Cells: 2 × 2 points per frame cell, into the shown grid. New cells wait in the pending list until
+        // they are a step (PUBLISH_CELL_SHARE of the shown cells) or do not fit; then all are shown at once.
+        let (fe1, fe2) = (linalg::column(&p.rotation, 0), linalg::column(&p.rotation, 1));
+        let (origin, ge1, ge2, g) = (w.origin, w.e1, w.e2, self.g_p);
+        let half = (WORLD_GRID / 2) as i32;
+        let for_each_cell = |f: &mut dyn FnMut(Option<usize>)| {
+            p.cells.for_each_set(|i, j| {
+                for (du, dv) in [(0.25f32, 0.25f32), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                    let u = (p.cells.a0 as f32 + i as f32 + du) * p.g_p;
+                    let v = (p.cells.b0 as f32 + j as f32 + dv) * p.g_p;
+                    let local = linalg::add(p.centroid, linalg::add(linalg::scale(fe1, u), linalg::scale(fe2, v)));
+                    let q = linalg::sub(local, origin);
+                    let a = linalg::floor_i32(linalg::dot(q, ge1) / g) + half;
+                    let b = linalg::floor_i32(linalg::dot(q, ge2) / g) + half;
+                    let inside = (0..WORLD_GRID as i32).contains(&a) && (0..WORLD_GRID as i32).contains(&b);
+                    f(inside.then(|| b as usize * WORLD_GRID + a as usize));
+                }
+            })
+        };
+        let is_set = |cells: &[u8], k: usize| cells.get(k / 8).is_some_and(|byte| (byte >> (k % 8)) & 1 == 1);
+        // New cells join the pending list (once each); a full list shows everything at once.
+        let (mut clipped, mut overflow, mut reach) = (0u32, false, w.reach);
+        for_each_cell(&mut |k| {
+            let Some(k) = k else {
+                clipped += 1;
+                return;
+            };
+            let n = w.pending_len as usize;
+            if is_set(&w.cells, k) || w.pending.get(..n).unwrap_or(&[]).contains(&(k as u16)) {
+                return;
+            }
+            let (a, b) = ((k % WORLD_GRID) as f32 + 0.5 - half as f32, (k / WORLD_GRID) as f32 + 0.5 - half as f32);
+            reach = reach.max(libm::sqrtf(a * a + b * b) * g);
+            match w.pending.get_mut(n) {
+                Some(slot) => {
+                    *slot = k as u16;
+                    w.pending_len += 1;
+                }
+                None => overflow = true,
+            }
+        });
+        w.reach = reach;
+        if overflow || w.pending_len as f32 > PUBLISH_CELL_SHARE * w.occupied as f32 {
+            for &k in w.pending.get(..w.pending_len as usize).unwrap_or(&[]) {
+                set_cell(&mut w.cells, k as usize);
+            }
+            w.pending_len = 0;
+            if overflow {
+                for_each_cell(&mut |k| {
+                    if let Some(k) = k {
+                        set_cell(&mut w.cells, k);
+                    }
+                });
+            }
+            w.occupied = w.cells.iter().map(|b| b.count_ones()).sum();
+            stats.planes_grown += 1;
+        }
+        w.clipped_cells = w.clipped_cells.saturating_add(clipped);
+        stats.cells_clipped += clipped;
+    }
+
+    /// Adds frame superquadric `s` (its track's smoothed state where the frame's points allow it), already in
+    /// the world frame.
+    fn add_object(&mut self, s: &MapSq, frame: u32, params: &Params, stats: &mut WorldStats) {
+        let sq = s.sq;
+        let objects = self.objects.as_slice();
+        let found = objects.iter().position(|o| o.track == s.track && o.class == s.class && o.last_frame != frame);
+        let adopted = found.or_else(|| {
+            objects.iter().position(|o| {
+                let reach = params.d_max.max(max3(o.sq.scales)).max(max3(sq.scales));
+                o.class == s.class
+                    && o.last_frame != frame
+                    && linalg::norm(linalg::sub(o.sq.centre, sq.centre)) <= reach
+            })
+        });
+        let index = match adopted {
+            Some(i) => {
+                stats.objects_updated += 1;
+                i
+            }
+            None => {
+                if self.objects.len() == self.objects.usage().capacity {
+                    // Full: evict the object unseen longest, unless every object was seen this frame.
+                    let victim = self
+                        .objects
+                        .as_slice()
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, o)| o.last_frame != frame)
+                        .min_by_key(|(_, o)| (o.last_frame, o.id))
+                        .map(|(i, _)| i);
+                    match victim {
+                        Some(v) if self.note_removal(KIND_SQ, v) => {
+                            remove_at(&mut self.objects, v);
+                            stats.objects_evicted += 1;
+                        }
+                        _ => {
+                            stats.objects_dropped += 1;
+                            return;
+                        }
+                    }
+                }
+                let object = WorldObject { id: self.next_id, shown: *s, ..WorldObject::zeroed() };
+                match self.objects.push(object) {
+                    Some(i) => {
+                        self.take_id();
+                        stats.objects_created += 1;
+                        i
+                    }
+                    None => {
+                        stats.objects_dropped += 1;
+                        return;
+                    }
+                }
+            }
+        };
+        if let Some(o) = self.objects.get_mut(index) {
+            o.sq = sq;
+            o.track = s.track;
+            o.class = s.class;
+            o.score = o.score.max(s.score);
+            o.last_frame = frame;
+            o.frames_seen = o.frames_seen.saturating_add(1);
+            let shown = &o.shown.sq;
+            let moved = linalg::norm(linalg::sub(shown.centre, sq.centre)) > PUBLISH_MOVE_M;
+            let turned = linalg::rotation_angle_between(&shown.rotation, &sq.rotation) > PUBLISH_ANGLE_DEG.to_radians();
+            let reshaped = (0..3).any(|k| {
+                let (a, b) = (shown.scales.get(k).copied().unwrap_or(0.0), sq.scales.get(k).copied().unwrap_or(0.0));
+                libm::fabsf(a - b) > PUBLISH_SHAPE_CHANGE * a.max(b)
+            }) || (0..2).any(|k| {
+                let (a, b) = (shown.eps.get(k).copied().unwrap_or(0.0), sq.eps.get(k).copied().unwrap_or(0.0));
+                libm::fabsf(a - b) > PUBLISH_SHAPE_CHANGE
+            });
+            if moved || turned || reshaped || o.shown.track != s.track || o.shown.class != s.class {
+                o.shown = MapSq { sq, instance: 0, class: o.class, score: o.score, track: o.track };
+            }
+        }
+    }
+
+    /// Adds frame Gaussian `g`, already in the world frame.
+    fn add_gaussian(&mut self, g: &MapGmm, frame: u32, params: &Params, stats: &mut WorldStats) {
+        let obs = Observed {
+            mean: g.mean,
+            covariance: covariance_of(&g.rotation, g.sigmas),
+            count: g.count.max(1),
+            colour: g.colour.map(|c| c as f32),
+            class: g.class,
+            score: g.score,
+        };
+        if self.explains(obs.mean, &obs.covariance, params) {
+            stats.gmms_explained += 1;
+            return;
+        }
+        let growth2 = params.world_gmm_growth * params.world_gmm_growth;
+        let mut best: Option<(usize, f32)> = None;
+        // A frame's Gaussians are distinct parts of what it saw: each merges into a world Gaussian that no
+        // other Gaussian of the same frame has touched.
+        for (i, w) in self.gaussians.as_slice().iter().enumerate().filter(|(_, w)| w.last_frame != frame) {
+            let sum = add_sym(w.covariance, obs.covariance, MERGE_NOISE_VAR);
+            let delta = linalg::sub(obs.mean, w.mean);
+            // d² ≤ gate needs |Δ|² ≤ gate · λmax ≤ gate · trace: a cheap first test.
+            if linalg::dot(delta, delta) > params.world_gmm_gate * trace(sum) {
+                continue;
+            }
+            let Some(d2) = mahalanobis2(sum, delta) else { continue };
+            if d2 > params.world_gmm_gate || best.is_some_and(|(_, b)| d2 >= b) {
+                continue;
+            }
+            let merged = merge(w, &obs);
+            if trace(merged.covariance) <= growth2 * trace(w.covariance).max(trace(obs.covariance)) {
+                best = Some((i, d2));
+            }
+        }
+        if let Some((i, _)) = best {
+            if let Some(w) = self.gaussians.get_mut(i) {
+                let m = merge(w, &obs);
+                w.mean = m.mean;
+                w.covariance = m.covariance;
+                w.colour = m.colour;
+                if obs.score > w.score {
+                    w.score = obs.score;
+                    w.class = obs.class;
+                }
+                w.count = m.count;
+                w.last_frame = frame;
+                publish_gaussian(w, false);
+                stats.gmms_merged += 1;
+            }
+            return;
+        }
+        if self.gaussians.len() == self.gaussians.usage().capacity {
+            let victim = self
+                .gaussians
+                .as_slice()
+                .iter()
+                .enumerate()
+                .filter(|(_, w)| w.last_frame != frame)
+                .min_by_key(|(_, w)| (w.count, w.last_frame, w.id))
+                .filter(|(_, w)| w.count < obs.count)
+                .map(|(i, _)| i);
+            match victim {
+                Some(v) if self.note_removal(KIND_GMM, v) => {
+                    remove_at(&mut self.gaussians, v);
+                    stats.gmms_evicted += 1;
+                }
+                _ => {
+                    stats.gmms_dropped += 1;
+                    return;
+                }
+            }
+        }
+        let mut w = WorldGaussian {
+            id: self.next_id,
+            mean: obs.mean,
+            covariance: obs.covariance,
+            count: obs.count,
+            colour: obs.colour,
+            class: obs.class,
+            score: obs.score,
+            last_frame: frame,
+            ..WorldGaussian::zeroed()
+        };
+        publish_gaussian(&mut w, true);
+        match self.gaussians.push(w) {
+            Some(_) => {
+                self.take_id();
+                stats.gmms_created += 1;
+            }
+            None => stats.gmms_dropped += 1,
+        }
+    }
+
+    /// Whether a world superquadric or plane explains a Gaussian with `mean` and `covariance` ([`EXPLAINED_M`]):
+    /// its mean is inside or near a superquadric's surface, or near a plane whose normal its least-variance
+    /// axis follows (within `world_plane_angle_deg`), over a shown or pending cell of that plane (±1 cell).
+    fn explains(&self, mean: Vec3, covariance: &Sym3, params: &Params) -> bool {
+        if self.objects.as_slice().iter().any(|o| o.is_confirmed() && o.shown.sq.distance(mean) <= EXPLAINED_M) {
+            return true;
+        }
+        let e = linalg::sym_eigen(*covariance);
+        let cos_min = libm::cosf(params.world_plane_angle_deg.to_radians());
+        let half = (WORLD_GRID / 2) as i32;
+        self.planes.as_slice().iter().any(|p| {
+            let q = linalg::sub(mean, p.origin);
+            if libm::fabsf(linalg::dot(q, p.normal)) > EXPLAINED_M
+                || libm::fabsf(linalg::dot(e.normal(), p.normal)) < cos_min
+            {
+                return false;
+            }
+            let a = linalg::floor_i32(linalg::dot(q, p.e1) / self.g_p) + half;
+            let b = linalg::floor_i32(linalg::dot(q, p.e2) / self.g_p) + half;
+            let pending = p.pending.get(..p.pending_len as usize).unwrap_or(&[]);
+            (-1..=1).any(|db| {
+                (-1..=1).any(|da| {
+                    let (a, b) = (a + da, b + db);
+                    if !((0..WORLD_GRID as i32).contains(&a) && (0..WORLD_GRID as i32).contains(&b)) {
+                        return false;
+                    }
+                    let k = b as usize * WORLD_GRID + a as usize;
+                    p.cells.get(k / 8).is_some_and(|byte| (byte >> (k % 8)) & 1 == 1) || pending.contains(&(k as u16))
+                })
+            })
+        })
+    }
+
+    /// Records the removal of element `index` of pool `kind` for the next delta (only when a delta carried it);
+    /// false when the removal list is full, and then the element must stay.
+    fn note_removal(&mut self, kind: u8, index: usize) -> bool {
+        let (id, sent) = match kind {
+            KIND_PLANE => self.planes.get(index).map(|p| (p.id, p.sent)),
+            KIND_SQ => self.objects.get(index).map(|o| (o.id, o.sent)),
+            _ => self.gaussians.get(index).map(|g| (g.id, g.sent)),
+        }
+        .unwrap_or((0, 0));
+        sent == 0 || self.removed.push((kind, id)).is_some()
+    }
+
+    /// Calls `f(id, primitive)` for every world primitive, world frame: planes, objects, Gaussians, each in
+    /// increasing id order.
+    pub fn for_each_primitive(&self, mut f: impl FnMut(u32, &Primitive<'_>)) {
+        for p in self.planes.as_slice() {
+            f(p.id, &Primitive::Plane(plane_view(p, self.g_p)));
+        }
+        for o in self.objects.as_slice().iter().filter(|o| o.is_confirmed()) {
+            f(o.id, &Primitive::Sq(o.shown));
+        }
+        for g in self.gaussians.as_slice() {
+            f(g.id, &Primitive::Gmm(g.shown));
+        }
+    }
+
+    /// Writes the world map (`world.bin`) through `out` with `scratch` (≥ [`wire::MAX_WORLD_RECORD_BYTES`]) as
+    /// the only buffer; returns the bytes written. Changes nothing.
+    pub fn encode_streaming(
+        &self,
+        scratch: &mut [u8],
+        out: impl FnMut(&[u8]) -> Result<(), WireError>,
+    ) -> Result<usize, WireError> {
+        let mut record = [0u8; wire::MAX_WORLD_RECORD_BYTES];
+        wire::encode_world_records(
+            self.frame.unwrap_or(0),
+            |sink| self.for_each_record(&mut record, |kind, id, bytes, _| sink(kind, id, bytes)),
+            scratch,
+            out,
+        )
+    }
+
+    /// Writes the world map into `buf`; returns the bytes written.
+    pub fn encode(&self, buf: &mut [u8]) -> Result<usize, WireError> {
+        let mut scratch = [0u8; 32];
+        let mut used = 0usize;
+        self.encode_streaming(&mut scratch, |bytes| {
+            let end = used + bytes.len();
+            buf.get_mut(used..end).ok_or(WireError::BufferTooSmall)?.copy_from_slice(bytes);
+            used = end;
+            Ok(())
+        })
+    }
+
+    /// Calls `f(kind, id, record bytes, CRC of the record last sent or None)` for every record in (kind, id)
+    /// order, each written into `record`.
+    fn for_each_record(
+        &self,
+        record: &mut [u8],
+        mut f: impl FnMut(u8, u32, &[u8], Option<u32>) -> Result<(), WireError>,
+    ) -> Result<(), WireError> {
+        let mut one = |id: u32, p: &Primitive<'_>, sent: u8, crc: u32| {
+            let n = wire::write_world_record(id, p, record)?;
+            f(wire::kind_of(p), id, record.get(..n).unwrap_or(&[]), (sent != 0).then_some(crc))
+        };
+        for p in self.planes.as_slice() {
+            one(p.id, &Primitive::Plane(plane_view(p, self.g_p)), p.sent, p.sent_crc)?;
+        }
+        for o in self.objects.as_slice().iter().filter(|o| o.is_confirmed()) {
+            one(o.id, &Primitive::Sq(o.shown), o.sent, o.sent_crc)?;
+        }
+        for g in self.gaussians.as_slice() {
+            one(g.id, &Primitive::Gmm(g.shown), g.sent, g.sent_crc)?;
+        }
+        Ok(())
+    }
+
+    /// Writes the delta of the last integrated frame through `out` (`scratch` as for
+    /// [`WorldMap::encode_streaming`]): the records that are new or whose bytes changed since the last delta,
+    /// then the removals since then. Only once the whole delta is written are the records marked as sent and
+    /// the removals cleared, so a failed write can be retried. Returns the bytes written.
+    pub fn encode_delta_streaming(
+        &mut self,
+        scratch: &mut [u8],
+        out: impl FnMut(&[u8]) -> Result<(), WireError>,
+    ) -> Result<usize, WireError> {
+        let mut record = [0u8; wire::MAX_WORLD_RECORD_BYTES];
+        let this = &*self;
+        let n = wire::encode_delta_records(
+            this.frame.unwrap_or(0),
+            |sink| {
+                this.for_each_record(&mut record, |kind, id, bytes, sent| {
+                    if sent == Some(wire::crc32(bytes)) {
+                        Ok(())
+                    } else {
+                        sink(kind, id, bytes)
+                    }
+                })
+            },
+            |sink| this.removed.as_slice().iter().try_for_each(|&(kind, id)| sink(kind, id)),
+            scratch,
+            out,
+        )?;
+        // Commit: every record as it now is has been sent.
+        let g_p = self.g_p;
+        for p in self.planes.as_mut_slice() {
+            let n = wire::write_world_record(p.id, &Primitive::Plane(plane_view(p, g_p)), &mut record)?;
+            p.sent_crc = wire::crc32(record.get(..n).unwrap_or(&[]));
+            p.sent = 1;
+        }
+        for o in self.objects.as_mut_slice().iter_mut().filter(|o| o.is_confirmed()) {
+            let n = wire::write_world_record(o.id, &Primitive::Sq(o.shown), &mut record)?;
+            o.sent_crc = wire::crc32(record.get(..n).unwrap_or(&[]));
+            o.sent = 1;
+        }
+        for g in self.gaussians.as_mut_slice() {
+            let n = wire::write_world_record(g.id, &Primitive::Gmm(g.shown), &mut record)?;
+            g.sent_crc = wire::crc32(record.get(..n).unwrap_or(&[]));
+            g.sent = 1;
+        }
+        self.removed.clear();
+        Ok(n)
+    }
+
+    /// Writes the delta into `buf`; returns the bytes written.
+    pub fn encode_delta(&mut self, buf: &mut [u8]) -> Result<usize, WireError> {
+        let mut scratch = [0u8; 32];
+        let mut used = 0usize;
+        self.encode_delta_streaming(&mut scratch, |bytes| {
+            let end = used + bytes.len();
+            buf.get_mut(used..end).ok_or(WireError::BufferTooSmall)?.copy_from_slice(bytes);
+            used = end;
+            Ok(())
+        })
+    }
+}
+
+/// A world plane as a map plane (world frame, its shown state): its grid, with σ0, σ1 the spread of its
+/// occupied cells along e1 and e2 and σ2 its mean thickness.
+pub fn plane_view(p: &WorldPlane, g_p: f32) -> MapPlane<'_> {
+    let half = (WORLD_GRID / 2) as i16;
+    let cells = CellBits {
+        a0: -half,
+        b0: -half,
+        width: WORLD_GRID as u16,
+        height: WORLD_GRID as u16,
+        coding: CellCoding::Bitmap,
+        bits: &p.cells,
+    };
+    let mut m = Moments::about([0.0; 3]);
+    cells.for_each_set(|i, j| m.add([i as f32 * g_p, j as f32 * g_p, 0.0], 1.0));
+    let cov = m.covariance();
+    MapPlane {
+        centroid: p.origin,
+        rotation: linalg::from_columns(p.e1, p.e2, p.normal),
+        sigmas: [libm::sqrtf(cov[0].max(0.0)), libm::sqrtf(cov[3].max(0.0)), p.thickness],
+        eigen_ratio: p.eigen_ratio,
+        colour: p.colour,
+        cluster: 0,
+        g_p,
+        cells,
+    }
+}
+
+/// Shows a world Gaussian's accumulated state when `force`, or when it is a step away from the shown one: the
+/// mean moved by more than max([`PUBLISH_MOVE_M`], a tenth of the largest σ), the covariance changed by more
+/// than [`PUBLISH_SHAPE_CHANGE`] of its Frobenius norm, or the support doubled.
+fn publish_gaussian(w: &mut WorldGaussian, force: bool) {
+    let shown = &w.shown;
+    let reach = PUBLISH_MOVE_M.max(0.25 * shown.sigmas[0]);
+    let moved = linalg::norm(linalg::sub(shown.mean, w.mean)) > reach;
+    let d: Sym3 = core::array::from_fn(|k| {
+        w.covariance.get(k).copied().unwrap_or(0.0) - w.shown_covariance.get(k).copied().unwrap_or(0.0)
+    });
+    let reshaped = frobenius2(d) > PUBLISH_SHAPE_CHANGE * PUBLISH_SHAPE_CHANGE * frobenius2(w.shown_covariance);
+    let grown = w.count / 2 > shown.count;
+    if !(force || moved || reshaped || grown) {
+        return;
+    }
+    let e = linalg::sym_eigen(w.covariance);
+    w.shown_covariance = w.covariance;
+    w.shown = MapGmm {
+        mean: w.mean,
+        rotation: linalg::from_columns(e.vectors[0], e.vectors[1], e.vectors[2]),
+        sigmas: e.sigmas(),
+        count: w.count,
+        colour: w.colour.map(|c| libm::roundf(c.clamp(0.0, 255.0)) as u8),
+        instance: 0,
+        class: w.class,
+        score: w.score,
+        support_ratio: 1.0,
+    };
+}
+
+/// Sets cell `k` of a world plane's bitmap.
+fn set_cell(cells: &mut [u8], k: usize) {
+    if let Some(byte) = cells.get_mut(k / 8) {
+        *byte |= 1 << (k % 8);
+    }
+}
+
+/// Squared Frobenius norm of a symmetric matrix.
+fn frobenius2(s: Sym3) -> f32 {
+    let [a, b, c, d, e, f] = s;
+    a * a + d * d + f * f + 2.0 * (b * b + c * c + e * e)
+}
+
+/// Removes element `index` of `pool`, keeping the order of the rest.
+fn remove_at<T: Copy>(pool: &mut Bounded<'_, T>, index: usize) {
+    let items = pool.as_mut_slice();
+    if index < items.len() {
+        if let Some(tail) = items.get_mut(index..) {
+            tail.rotate_left(1);
+        }
+        pool.pop();
+    }
+}
+
+fn max3(v: Vec3) -> f32 {
+    v[0].max(v[1]).max(v[2])
+}
+
+fn trace(s: Sym3) -> f32 {
+    s[0] + s[3] + s[5]
+}
+
+fn add_sym(a: Sym3, b: Sym3, diagonal: f32) -> Sym3 {
+    [a[0] + b[0] + diagonal, a[1] + b[1], a[2] + b[2], a[3] + b[3] + diagonal, a[4] + b[4], a[5] + b[5] + diagonal]
+}
+
+/// R · diag(σ²) · Rᵀ for the rotation whose columns are the axes.
+fn covariance_of(axes: &linalg::Mat3, sigmas: Vec3) -> Sym3 {
+    let mut s = [0.0f32; 6];
+    for k in 0..3 {
+        let c = linalg::column(axes, k);
+        let v = sigmas.get(k).copied().unwrap_or(0.0);
+        let v = v * v;
+        s[0] += v * c[0] * c[0];
+        s[1] += v * c[0] * c[1];
+        s[2] += v * c[0] * c[2];
+        s[3] += v * c[1] * c[1];
+        s[4] += v * c[1] * c[2];
+        s[5] += v * c[2] * c[2];
+    }
+    s
+}
+
+/// Δᵀ S⁻¹ Δ for a symmetric positive-definite S (adjugate over determinant); `None` when S is singular.
+fn mahalanobis2(s: Sym3, d: Vec3) -> Option<f32> {
+    let [a, b, c, e, f, i] = s;
+    // S = [[a, b, c], [b, e, f], [c, f, i]]
+    let (c00, c01, c02) = (e * i - f * f, c * f - b * i, b * f - c * e);
+    let (c11, c12, c22) = (a * i - c * c, b * c - a * f, a * e - b * b);
+    let det = a * c00 + b * c01 + c * c02;
+    if det.is_nan() || det <= 0.0 || det.is_infinite() {
+        return None;
+    }
+    let q = d[0] * (c00 * d[0] + c01 * d[1] + c02 * d[2])
+        + d[1] * (c01 * d[0] + c11 * d[1] + c12 * d[2])
+        + d[2] * (c02 * d[0] + c12 * d[1] + c22 * d[2]);
+    Some(q / det)
+}
+
+/// The moment-matched union of a world Gaussian and an observation.
+fn merge(w: &WorldGaussian, o: &Observed) -> WorldGaussian {
+    let mut m = Moments::about(w.mean);
+    m.add_gaussian(w.mean, w.covariance, w.count as f32);
+    m.add_gaussian(o.mean, o.covariance, o.count as f32);
+    let count = w.count.saturating_add(o.count);
+    let k = o.count as f32 / count.max(1) as f32;
+    let mut colour = w.colour;
+    for (acc, c) in colour.iter_mut().zip(o.colour) {
+        *acc += (c - *acc) * k;
+    }
+    WorldGaussian { mean: m.mean(), covariance: m.covariance(), count, colour, ..*w }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+
+    use super::*;
+    use crate::map::CellCoding;
+    use std::collections::BTreeMap;
+    use std::vec::Vec;
+
+    type Small = WorldStorage<4, 4, 8, 8>;
+
+    fn identity() -> Pose {
+        Pose { rotation: linalg::IDENTITY, translation: [0.0; 3] }
+    }
+
+    fn moved(x: f32) -> Pose {
+        Pose { rotation: linalg::IDENTITY, translation: [x, 0.0, 0.0] }
+    }
+
+    /// Sets columns `i0..i1` of rows `j0..j1` of an 80 × 80 cell bitmap.
+    fn block(bits: &mut [u8; 800], (i0, i1): (usize, usize), (j0, j1): (usize, usize)) -> &mut [u8; 800] {
+        for j in j0..j1 {
+            for i in i0..i1 {
+                let k = j * 80 + i;
+                bits[k / 8] |= 1 << (k % 8);
+            }
+        }
+        bits
+    }
+
+    /// A floor 1 m below the camera (normal −y, camera frame) with the cells of columns `i0..i1`, rows 0..10 of
+    /// an 80 × 80 grid around its centroid set.
+    fn floor(bits: &mut [u8; 800], i0: usize, i1: usize) -> MapPlane<'_> {
+        let bits = block(bits, (i0, i1), (0, 10));
+        MapPlane {
+            centroid: [0.0, 1.0, 2.0],
+            rotation: linalg::from_columns([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]),
+            sigmas: [0.5, 0.5, 0.004],
+            eigen_ratio: 0.001,
+            colour: [100, 100, 100],
+            cluster: 0,
+            g_p: 0.05,
+            cells: CellBits { a0: -40, b0: -40, width: 80, height: 80, coding: CellCoding::Bitmap, bits },
+        }
+    }
+
+    fn gmm(mean: Vec3, count: u32) -> MapGmm {
+        MapGmm {
+            mean,
+            rotation: linalg::IDENTITY,
+            sigmas: [0.05, 0.03, 0.004],
+            count,
+            colour: [200, 10, 10],
+            instance: 0,
+            class: 0,
+            score: 0.0,
+            support_ratio: 0.0,
+        }
+    }
+
+    fn sq(centre: Vec3, track: u16) -> MapSq {
+        let sq = Superquadric { scales: [0.1, 0.1, 0.2], eps: [0.5, 0.5], centre, rotation: linalg::IDENTITY };
+        MapSq { sq, instance: 3, class: 2, score: 0.9, track }
+    }
+
+    fn bytes(world: &WorldMap<'_>) -> Vec<u8> {
+        let mut out = Vec::new();
+        world
+            .encode_streaming(&mut [0u8; 32], |b| {
+                out.extend_from_slice(b);
+                Ok(())
+            })
+            .unwrap();
+        out
+    }
+
+    fn delta(world: &mut WorldMap<'_>) -> Vec<u8> {
+        let mut out = Vec::new();
+        world
+            .encode_delta_streaming(&mut [0u8; 32], |b| {
+                out.extend_from_slice(b);
+                Ok(())
+            })
+            .unwrap();
+        out
+    }
+
+    /// A receiver as a ground station would run it: records by (kind, id), written out like the sender's map.
+    #[derive(Default)]
+    struct Receiver(BTreeMap<(u8, u32), Vec<u8>>, u32);
+
+    impl Receiver {
+        fn apply(&mut self, d: &[u8]) -> wire::DeltaHeader {
+            let mut changes = Vec::new();
+            let h = wire::decode_delta(d, |c| {
+                changes.push(match c {
+                    wire::DeltaChange::Upsert(r) => (r.kind, r.id, Some(r.bytes.to_vec())),
+                    wire::DeltaChange::Remove { kind, id } => (kind, id, None),
+                })
+            })
+            .unwrap();
+            for (kind, id, b) in changes {
+                match b {
+                    Some(b) => self.0.insert((kind, id), b),
+                    None => self.0.remove(&(kind, id)),
+                };
+            }
+            self.1 = h.frame;
+            h
+        }
+
+        fn world(&self) -> Vec<u8> {
+            let mut out = Vec::new();
+            wire::encode_world_records(
+                self.1,
+                |sink| self.0.iter().try_for_each(|(&(k, id), b)| sink(k, id, b)),
+                &mut [0u8; 32],
+                |b| {
+                    out.extend_from_slice(b);
+                    Ok(())
+                },
+            )
+            .unwrap();
+            out
+        }
+    }
+
+    #[test]
+    fn a_plane_seen_from_two_places_is_one_world_plane_holding_both_views_cells() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        let (mut a, mut b) = ([0u8; 800], [0u8; 800]);
+        // Frame 0 sees columns 40..50; frame 1, from 0.25 m further along x, sees columns 35..50 of its own
+        // grid: world columns 40..50 again and 5 more beyond (0.25 m = 5 cells).
+        let p0 = floor(&mut a, 40, 50);
+        let p1 = floor(&mut b, 35, 50);
+        world.integrate(0, &identity(), &params, |f| f(&Primitive::Plane(p0))).unwrap();
+        let stats = world.integrate(1, &moved(0.25), &params, |f| f(&Primitive::Plane(p1))).unwrap();
+        assert_eq!((stats.planes_merged, stats.planes_created), (1, 0));
+        assert_eq!(world.planes().len(), 1);
+        let plane = world.planes()[0];
+        // 10 × 10 cells, then 5 × 10 more: 50 new cells are more than 15 % of 100, so they are shown at once.
+        assert_eq!(plane.occupied, 150, "shown cells");
+        assert_eq!(plane.pending_len, 0);
+        // The shown plane is the floor: normal ±y, 1 m below the first camera.
+        assert!(libm::fabsf(plane.normal[1]).abs() > 0.999);
+        assert!((linalg::dot(plane.normal, plane.origin) - linalg::dot(plane.normal, [0.0, 1.0, 2.0])).abs() < 1e-4);
+        let mut samples = 0;
+        world.for_each_primitive(|_, p| {
+            p.for_each_sample(|x| {
+                assert!((x[1] - 1.0).abs() < 1e-4, "a floor sample off the floor: {x:?}");
+                samples += 1;
+            })
+        });
+        assert_eq!(samples, 150);
+        // A third view adding 5 cells (under 15 % of 150) keeps them pending: not shown, not sent.
+        let mut c = [0u8; 800];
+        block(&mut c, (40, 45), (10, 11));
+        let p2 = floor(&mut c, 40, 50);
+        let before = bytes(&world);
+        world.integrate(2, &identity(), &params, |f| f(&Primitive::Plane(p2))).unwrap();
+        assert_eq!((world.planes()[0].occupied, world.planes()[0].pending_len), (150, 5));
+        // Header (magic, version, frame, record count: 5 bytes here) and CRC aside, the map is the same.
+        let after = bytes(&world);
+        assert_eq!(&after[5..after.len() - 4], &before[5..before.len() - 4], "the records changed");
+    }
+
+    #[test]
+    fn a_re_observed_gaussian_merges_by_moments_and_a_neighbour_stays_apart() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        world.integrate(0, &identity(), &params, |f| f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 100)))).unwrap();
+        // The same patch seen from 0.1 m to the left (camera frame x + 0.1), 2 mm off, and a patch 30 cm away.
+        let stats = world
+            .integrate(1, &moved(-0.1), &params, |f| {
+                f(&Primitive::Gmm(gmm([0.102, 0.0, 2.0], 300)));
+                f(&Primitive::Gmm(gmm([0.4, 0.0, 2.0], 100)));
+            })
+            .unwrap();
+        assert_eq!((stats.gmms_merged, stats.gmms_created), (1, 1));
+        let g = world.gaussians();
+        assert_eq!(g.len(), 2);
+        assert_eq!(g[0].count, 400);
+        // Moment matching: the mean weighted by support, 1.5 mm from the first; the variances those of the
+        // union of both supports (the 2 mm offset adds 0.75 µm² along x).
+        assert!((g[0].mean[0] - 0.0015).abs() < 1e-5, "merged mean {:?}", g[0].mean);
+        let expected_x = (398.0 * 0.05f32 * 0.05 + 100.0 * 0.0015 * 0.0015 + 300.0 * 0.0005 * 0.0005) / 399.0;
+        assert!((g[0].covariance[0] - expected_x).abs() < 1e-7, "{} vs {expected_x}", g[0].covariance[0]);
+        assert!((g[0].covariance[3] - 0.03 * 0.03 * 398.0 / 399.0).abs() < 1e-7);
+        assert!((g[1].mean[0] - 0.3).abs() < 1e-5);
+    }
+
+    #[test]
+    fn a_full_pool_evicts_the_weakest_gaussian_and_the_receiver_hears_of_it() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<WorldStorage<1, 1, 2, 4>>();
+        let mut world = WorldMap::new(&mut storage);
+        let mut rx = Receiver::default();
+        world
+            .integrate(0, &identity(), &params, |f| {
+                f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 10)));
+                f(&Primitive::Gmm(gmm([1.0, 0.0, 2.0], 50)));
+            })
+            .unwrap();
+        rx.apply(&delta(&mut world));
+        assert_eq!(rx.world(), bytes(&world));
+        let weakest = world.gaussians()[0].id;
+        // A stronger newcomer evicts the weakest; a weaker one is dropped.
+        let stats =
+            world.integrate(1, &identity(), &params, |f| f(&Primitive::Gmm(gmm([-1.0, 0.0, 2.0], 100)))).unwrap();
+        assert_eq!((stats.gmms_evicted, stats.gmms_created, stats.gmms_dropped), (1, 1, 0));
+        let stats = world.integrate(2, &identity(), &params, |f| f(&Primitive::Gmm(gmm([2.0, 0.0, 2.0], 5)))).unwrap();
+        assert_eq!((stats.gmms_evicted, stats.gmms_dropped), (0, 1));
+        assert!(world.gaussians().iter().all(|g| g.id != weakest));
+        let d = delta(&mut world);
+        let h = rx.apply(&d);
+        assert_eq!((h.upserts, h.removals), (1, 1));
+        assert_eq!(rx.world(), bytes(&world));
+    }
+
+    #[test]
+    fn deltas_rebuild_the_world_byte_for_byte_and_an_unchanged_view_sends_nothing() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<WorldStorage<4, 4, 64, 64>>();
+        let mut world = WorldMap::new(&mut storage);
+        let mut rx = Receiver::default();
+        let mut seed = 12345u32;
+        let mut rand = move || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let mut floor_bits = [0u8; 800];
+        let p = floor(&mut floor_bits, 30, 60);
+        for frame in 0..40u32 {
+            let pose = moved(0.02 * frame as f32);
+            let gaussians: Vec<MapGmm> = (0..12)
+                .map(|_| gmm([rand() * 2.0 - 1.0, rand() - 0.5, 1.5 + rand()], 20 + (rand() * 200.0) as u32))
+                .collect();
+            world
+                .integrate(frame, &pose, &params, |f| {
+                    f(&Primitive::Plane(p));
+                    f(&Primitive::Sq(sq([0.3, 0.2, 2.0], 1)));
+                    for g in &gaussians {
+                        f(&Primitive::Gmm(*g));
+                    }
+                })
+                .unwrap();
+            let d = delta(&mut world);
+            rx.apply(&d);
+            assert_eq!(rx.world(), bytes(&world), "frame {frame}");
+        }
+        // The same view again changes nothing the wire can see: an empty delta.
+        world.integrate(40, &moved(0.78), &params, |f| f(&Primitive::Plane(p))).unwrap();
+        let h = rx.apply(&delta(&mut world));
+        assert_eq!((h.upserts, h.removals), (0, 0));
+        assert_eq!(rx.world(), bytes(&world));
+    }
+
+    #[test]
+    fn a_bad_pose_or_an_old_frame_is_refused_and_changes_nothing() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        world.integrate(5, &identity(), &params, |f| f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 100)))).unwrap();
+        let before = bytes(&world);
+        let bad = Pose { rotation: [[f32::NAN; 3]; 3], translation: [0.0; 3] };
+        let add = |f: &mut dyn FnMut(&Primitive<'_>)| f(&Primitive::Gmm(gmm([3.0, 0.0, 2.0], 100)));
+        assert_eq!(world.integrate(6, &bad, &params, add), Err(WorldError::BadPose));
+        assert_eq!(world.integrate(5, &identity(), &params, add), Err(WorldError::FrameOutOfOrder));
+        assert_eq!(bytes(&world), before);
+        assert_eq!(world.frame(), Some(5));
+    }
+
+    #[test]
+    fn an_object_is_shown_once_confirmed_and_keeps_its_id_when_its_track_restarts() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        let shown = |w: &WorldMap<'_>| w.primitive_counts()[1];
+        for frame in 0..3 {
+            assert_eq!(shown(&world), 0, "frame {frame}: not confirmed yet");
+            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(sq([0.0, 0.0, 2.0], 1)))).unwrap();
+        }
+        assert_eq!(shown(&world), 1);
+        let id = world.objects()[0].id;
+        // The track is retired and a new one starts 5 cm away: the same world object.
+        for frame in 3..6 {
+            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(sq([0.05, 0.0, 2.0], 9)))).unwrap();
+        }
+        assert_eq!(world.objects().len(), 1);
+        assert_eq!((world.objects()[0].id, world.objects()[0].track), (id, 9));
+        // A Gaussian on the object's surface is explained by it; one 1 m away is not.
+        let stats = world
+            .integrate(6, &identity(), &params, |f| {
+                f(&Primitive::Gmm(gmm([0.15, 0.0, 2.0], 100)));
+                f(&Primitive::Gmm(gmm([1.0, 0.0, 2.0], 100)));
+            })
+            .unwrap();
+        assert_eq!((stats.gmms_explained, stats.gmms_created), (1, 1));
+        // A passing fit seen once, never confirmed, leaves after track_max_missed frames and is never shown.
+        world.integrate(7, &identity(), &params, |f| f(&Primitive::Sq(sq([2.0, 0.0, 2.0], 4)))).unwrap();
+        assert_eq!(world.objects().len(), 2);
+        let last = 8 + params.track_max_missed;
+        for frame in 8..=last {
+            world.integrate(frame, &identity(), &params, |_| {}).unwrap();
+        }
+        assert_eq!(world.objects().len(), 1);
+    }
+
+    #[test]
+    fn corrupted_world_maps_and_deltas_are_errors() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        world.integrate(0, &identity(), &params, |f| f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 100)))).unwrap();
+        let map = bytes(&world);
+        let d = delta(&mut world);
+        let mut n = 0;
+        assert_eq!(wire::decode_world(&map, |_| n += 1).map(|h| h.records), Ok(1));
+        assert_eq!(n, 1);
+        for (bytes, is_delta) in [(map, false), (d, true)] {
+            for cut in 0..bytes.len() {
+                let part = &bytes[..cut];
+                assert!(wire::decode_world(part, |_| {}).is_err() && wire::decode_delta(part, |_| {}).is_err());
+            }
+            let mut flipped = bytes.clone();
+            flipped[5] ^= 0x10;
+            assert_eq!(wire::decode_world(&flipped, |_| {}).err(), Some(WireError::BadChecksum));
+            // A world map is not a delta, and the other way round.
+            let wrong = if is_delta {
+                wire::decode_world(&bytes, |_| {})
+            } else {
+                wire::decode_delta(&bytes, |_| {}).map(|_| wire::WorldHeader {
+                    magic: *b"MW",
+                    version: 1,
+                    frame: 0,
+                    records: 0,
+                })
+            };
+            assert_eq!(wrong.err(), Some(WireError::BadMagic));
+        }
+    }
+}
