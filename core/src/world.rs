@@ -68,6 +68,9 @@ pub const PUBLISH_CELL_SHARE: f32 = 0.15;
 /// A Gaussian whose mean lies within this distance of a world superquadric's surface (or inside it), or of a
 /// world plane it is parallel to, over an occupied cell, is already explained by that primitive, metres.
 pub const EXPLAINED_M: f32 = 0.03;
+/// A frame plane joins a world plane only if its farthest cell lies within this many `world_plane_offset`s of
+/// it (centroid offset plus tilt times reach).
+pub const PLANE_BEND_OFFSETS: f32 = 3.0;
 /// A world object is shown once its superquadric was seen in this many frames (a fit that no later frame
 /// confirms stays out of the map, and leaves it after `track_max_missed` frames unseen).
 pub const OBJECT_MIN_FRAMES: u16 = 3;
@@ -405,14 +408,28 @@ impl<'s> WorldMap<'s> {
         let n = linalg::column(&p.rotation, 2);
         let c = p.centroid;
         let cos_min = libm::cosf(params.world_plane_angle_deg.to_radians());
+        // How far the frame plane's cells reach from its centroid: a tilt between the planes moves its far
+        // cells by the tilt times this.
+        let reach = p.cells.occupied_box().map_or(0.0, |(i0, j0, i1, j1)| {
+            let far = |lo: usize, hi: usize, origin: i16| {
+                let (lo, hi) = (origin as f32 + lo as f32, origin as f32 + hi as f32 + 1.0);
+                libm::fabsf(lo).max(libm::fabsf(hi)) * p.g_p
+            };
+            let (u, v) = (far(i0, i1, p.cells.a0), far(j0, j1, p.cells.b0));
+            libm::sqrtf(u * u + v * v)
+        });
         let mut best: Option<(usize, f32)> = None;
         for (i, w) in self.planes.as_slice().iter().enumerate() {
-            let offset = libm::fabsf(linalg::dot(w.acc_normal, c) - w.acc_offset);
+            // The centroid within `world_plane_offset`, and the far cells within PLANE_BEND_OFFSETS times that
+            // (a frame's floor seen at a grazing angle tilts by a degree or two; a different surface more).
+            let off = libm::fabsf(linalg::dot(w.acc_normal, c) - w.acc_offset);
+            let bend = linalg::norm(linalg::cross(w.acc_normal, n)) * reach;
             if libm::fabsf(linalg::dot(w.acc_normal, n)) >= cos_min
-                && offset <= params.world_plane_offset
-                && best.is_none_or(|(_, o)| offset < o)
+                && off <= params.world_plane_offset
+                && off + bend <= PLANE_BEND_OFFSETS * params.world_plane_offset
+                && best.is_none_or(|(_, o)| off < o)
             {
-                best = Some((i, offset));
+                best = Some((i, off));
             }
         }
         let index = match best {

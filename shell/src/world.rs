@@ -158,8 +158,8 @@ pub struct WorldSummary {
     pub frame_map_bytes_mean: f64,
     /// `delta_bytes_mean / frame_map_bytes_mean`.
     pub delta_to_frame_map: f64,
-    /// RMS distance from every world reconstruction sample (superquadrics: the whole surface) to the union of
-    /// the frames' observed points, metres.
+    /// RMS distance from the world map's samples ([`seen_samples`]: superquadric surface that faces one of the
+    /// run's cameras) to the union of the frames' observed points, metres.
     pub g2r_rmse_m: Option<f64>,
     /// RMS distance from the observed union (one point per 1 cm cell) to the world samples, metres.
     pub r2g_rmse_m: Option<f64>,
@@ -188,7 +188,7 @@ pub struct WorldRun<'s> {
     observed: HashMap<[i32; 3], [f32; 3]>,
     records: Vec<WorldFrameRecord>,
     frame: u32,
-    first_pose: Option<Pose>,
+    cameras: Vec<[f32; 3]>,
     totals: WorldStats,
 }
 
@@ -213,7 +213,7 @@ impl<'s> WorldRun<'s> {
             observed: HashMap::new(),
             records: Vec::new(),
             frame: 0,
-            first_pose: None,
+            cameras: Vec::new(),
             totals: WorldStats::default(),
         })
     }
@@ -239,7 +239,7 @@ impl<'s> WorldRun<'s> {
             .integrate(self.frame, pose, params, primitives)
             .map_err(|e| anyhow!("frame {index}: world map: {e}"))?;
         self.frame += 1;
-        self.first_pose.get_or_insert(*pose);
+        self.cameras.push(pose.translation);
         for p in observed {
             let w = pose.to_world(*p);
             let key = w.map(|x| (x / OBSERVED_GRID_M).floor() as i32);
@@ -341,6 +341,7 @@ impl<'s> WorldRun<'s> {
         let vertices = world_vertices(&self.world);
         crate::export::write_ply(&self.dir.join("world.ply"), &vertices)?;
         let samples: Vec<[f32; 3]> = vertices.iter().map(|v| v.xyz.map(|x| x as f32)).collect();
+        let seen = seen_samples(&self.world, &self.cameras);
         let observed: Vec<[f32; 3]> = {
             let mut v: Vec<([i32; 3], [f32; 3])> = self.observed.iter().map(|(k, p)| (*k, *p)).collect();
             v.sort_by_key(|(k, _)| *k);
@@ -360,11 +361,10 @@ impl<'s> WorldRun<'s> {
             delta_bytes_mean: delta_mean,
             frame_map_bytes_mean: frame_mean,
             delta_to_frame_map: if frame_mean > 0.0 { delta_mean / frame_mean } else { 0.0 },
-            g2r_rmse_m: crate::eval::rms_nearest(&samples, &observed),
+            g2r_rmse_m: crate::eval::rms_nearest(&seen.iter().map(|s| s.1).collect::<Vec<_>>(), &observed),
             r2g_rmse_m: crate::eval::rms_nearest(&observed, &samples),
             g2r_by_kind_m: [0u8, 1, 2].map(|k| {
-                let own: Vec<[f32; 3]> =
-                    vertices.iter().filter(|v| v.kind == k).map(|v| v.xyz.map(|x| x as f32)).collect();
+                let own: Vec<[f32; 3]> = seen.iter().filter(|s| s.0 == k).map(|s| s.1).collect();
                 crate::eval::rms_nearest(&own, &observed)
             }),
             observed_points: observed.len(),
@@ -404,6 +404,25 @@ pub fn world_vertices(world: &WorldMap<'_>) -> Vec<Vertex> {
         p.for_each_surface_sample(|x| {
             out.push(Vertex { xyz: x.map(f64::from), rgb, primitive: id, kind, instance: -1 });
         });
+    });
+    out
+}
+
+/// The world map's samples that G2R scores, with their kind: every sample of a plane or Gaussian, and the
+/// surface samples of a superquadric whose outward normal faces at least one of the run's camera centres
+/// `cameras` (world frame) — the world-map analogue of SPEC's camera-facing G2R samples.
+pub fn seen_samples(world: &WorldMap<'_>, cameras: &[[f32; 3]]) -> Vec<(u8, [f32; 3])> {
+    let mut out = Vec::new();
+    world.for_each_primitive(|_, p| match p {
+        Primitive::Sq(s) => s.for_each_surface_sample(|x| {
+            let n = s.sq.normal_at_local(s.sq.local(x));
+            let facing = cameras.iter().any(|c| (0..3).map(|k| n[k] * (c[k] - x[k])).sum::<f32>() > 0.0);
+            if facing {
+                out.push((1, x));
+            }
+        }),
+        Primitive::Plane(_) => p.for_each_sample(|x| out.push((0, x))),
+        Primitive::Gmm(_) => p.for_each_sample(|x| out.push((2, x))),
     });
     out
 }
