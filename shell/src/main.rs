@@ -55,6 +55,39 @@ enum ViewChoice {
     Top,
 }
 
+/// `render --world`: maps frames 0..=`last` into a world map and draws it from `view`.
+fn render_world(
+    s: Session<'_, '_>,
+    last: usize,
+    view: render::MapView,
+    dataset: &std::path::Path,
+    out: &std::path::Path,
+) -> Result<()> {
+    let mut storage = m2smap::world::host_storage();
+    let mut world = m2smap_core::world::WorldMap::new(&mut storage);
+    let mut first = None;
+    for k in 0..=last {
+        let pose = s.dataset.frames[k]
+            .pose
+            .ok_or_else(|| {
+                anyhow!("{}: frame {k} has no camera pose; --world needs one for every frame", dataset.display())
+            })?
+            .to_core();
+        map_frame(s.mapper, s.dataset, k, s.source, s.labels, s.seg)?;
+        world
+            .integrate(k as u32, &pose, s.mapper.params(), |f| s.mapper.for_each_primitive(f))
+            .map_err(|e| anyhow!("frame {k}: world map: {e}"))?;
+        first.get_or_insert(pose);
+    }
+    let first = first.ok_or_else(|| anyhow!("no frame mapped"))?;
+    let c = &s.dataset.camera;
+    let k = m2smap_core::Intrinsics { fx: c.fx as f32, fy: c.fy as f32, cx: c.cx as f32, cy: c.cy as f32 };
+    render::render_world(&world, &first, &k, (c.width as u32, c.height as u32), view, out)?;
+    let [planes, sqs, gmms] = world.primitive_counts();
+    println!("world map of frames 0..={last}: {planes} planes, {sqs} SQs, {gmms} GMMs -> {}", out.display());
+    Ok(())
+}
+
 /// The variant named on the command line, or an error listing the valid names.
 fn parse_variant(name: &str) -> Result<Variant> {
     Variant::from_name(name).ok_or_else(|| {
@@ -214,6 +247,10 @@ enum Command {
         /// seen from above).
         #[arg(long, requires = "view")]
         angle: Option<f32>,
+        /// Draw the world map of frames 0..=K (needs camera poses) from around all of it, in the first
+        /// camera's frame: --view orbit (the default here) or top.
+        #[arg(long)]
+        world: bool,
         #[command(flatten)]
         how: MappingArgs,
     },
@@ -402,9 +439,10 @@ fn execute(cli: Cli) -> Result<()> {
             println!("wrote {frames} firmware frames and expected.txt to {}", out.display());
             Ok(())
         }
-        Command::Render { dataset, frame, out, masks, segmenter, view, angle, how } => {
+        Command::Render { dataset, frame, out, masks, segmenter, view, angle, world, how } => {
             with_mapper(&dataset, &how, masks, segmenter, |s| {
                 check_frame(s.dataset, frame)?;
+                let view = if world && view == ViewChoice::Camera { ViewChoice::Orbit } else { view };
                 let map_view = match (view, angle) {
                     (ViewChoice::Camera, None) => None,
                     (ViewChoice::Orbit, None) => Some(render::MapView::Orbit),
@@ -412,6 +450,9 @@ fn execute(cli: Cli) -> Result<()> {
                     (ViewChoice::Top, None) => Some(render::MapView::Top),
                     (_, Some(a)) => anyhow::bail!("--angle {a} goes with --view orbit and must be a number of degrees"),
                 };
+                if let (true, Some(v)) = (world, map_view) {
+                    return render_world(s, frame, v, &dataset, &out);
+                }
                 // Earlier frames warm the superquadric tracks: the picture shows the map `run` has at this frame.
                 for k in 0..frame {
                     map_frame(s.mapper, s.dataset, k, s.source, s.labels, s.seg)?;

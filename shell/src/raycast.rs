@@ -124,19 +124,21 @@ impl Shape {
                 radii: g.sigmas.map(|s| (GAUSSIAN_EXTENT * s).max(MIN_RADIUS)),
             },
             Primitive::Plane(p) => {
-                // Expanded to a bitmap (whichever coding the map used) for constant-time lookups.
-                let w = p.cells.width as usize;
-                let mut bits = vec![0u8; (w * p.cells.height as usize).div_ceil(8)];
+                // Cropped to the occupied cells and expanded to a bitmap (whichever coding the map used) for
+                // constant-time lookups.
+                let (i0, j0, i1, j1) = p.cells.occupied_box().unwrap_or((0, 0, 0, 0));
+                let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
+                let mut bits = vec![0u8; (w * h).div_ceil(8)];
                 p.cells.for_each_set(|i, j| {
-                    let k = j * w + i;
+                    let k = (j - j0) * w + (i - i0);
                     bits[k / 8] |= 1 << (k % 8);
                 });
                 Shape::Cells {
                     centroid: p.centroid,
                     rotation: p.rotation,
                     g_p: p.g_p,
-                    origin: (p.cells.a0, p.cells.b0),
-                    size: (p.cells.width, p.cells.height),
+                    origin: (p.cells.a0 + i0 as i16, p.cells.b0 + j0 as i16),
+                    size: (w as u16, h as u16),
                     bits,
                 }
             }
@@ -449,19 +451,23 @@ impl Framing {
         };
         let target = [median(0), median(1), median(2)];
         let radius = focus.iter().map(|(c, r)| linalg::norm(linalg::sub(*c, target)) + r).fold(0.2f32, f32::max);
-        let camera_up = [0.0, -1.0, 0.0];
-        let mut best: Option<(usize, Vec3)> = None;
-        for item in items {
-            if let Shape::Cells { rotation, bits, .. } = &item.shape {
-                let n = linalg::column(rotation, 2);
-                let n = if linalg::dot(n, camera_up) < 0.0 { linalg::scale(n, -1.0) } else { n };
-                let cells = bits.iter().map(|b| b.count_ones() as usize).sum::<usize>();
-                if linalg::dot(n, camera_up) > std::f32::consts::FRAC_1_SQRT_2 && best.is_none_or(|(c, _)| cells > c) {
-                    best = Some((cells, n));
-                }
+        Framing { target, radius, up: up_of(items) }
+    }
+
+    /// A framing that holds every primitive: the centre of their bounding spheres' box as the target, and
+    /// the radius that reaches all of them (a world map, seen whole).
+    pub fn whole(items: &[Drawable]) -> Framing {
+        let spheres: Vec<(Vec3, f32)> = items.iter().map(|i| i.shape.bounding_sphere()).collect();
+        let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+        for (c, r) in &spheres {
+            for k in 0..3 {
+                lo[k] = lo[k].min(c[k] - r);
+                hi[k] = hi[k].max(c[k] + r);
             }
         }
-        Framing { target, radius, up: best.map_or(camera_up, |(_, n)| n) }
+        let target = if spheres.is_empty() { [0.0, 0.0, 1.0] } else { linalg::scale(linalg::add(lo, hi), 0.5) };
+        let radius = spheres.iter().map(|(c, r)| linalg::norm(linalg::sub(*c, target)) + r).fold(0.2f32, f32::max);
+        Framing { target, radius, up: up_of(items) }
     }
 
     /// The view from `viewpoint`, with the optics of `camera` (the mapped frame's view), at the distance that
@@ -486,6 +492,23 @@ impl Framing {
             }
         }
     }
+}
+
+/// Up: the normal of the plane with the most cells that is within 45° of the camera's up (−y), else −y.
+fn up_of(items: &[Drawable]) -> Vec3 {
+    let camera_up = [0.0, -1.0, 0.0];
+    let mut best: Option<(usize, Vec3)> = None;
+    for item in items {
+        if let Shape::Cells { rotation, bits, .. } = &item.shape {
+            let n = linalg::column(rotation, 2);
+            let n = if linalg::dot(n, camera_up) < 0.0 { linalg::scale(n, -1.0) } else { n };
+            let cells = bits.iter().map(|b| b.count_ones() as usize).sum::<usize>();
+            if linalg::dot(n, camera_up) > std::f32::consts::FRAC_1_SQRT_2 && best.is_none_or(|(c, _)| cells > c) {
+                best = Some((cells, n));
+            }
+        }
+    }
+    best.map_or(camera_up, |(_, n)| n)
 }
 
 /// `v` rotated by `angle` radians about the unit `axis` (Rodrigues).

@@ -144,15 +144,38 @@ pub fn render_panels(mapper: &Mapper<'_>, frame: &Frame<'_>, masks: Option<&Fram
 
 /// The map's primitives, coloured by kind with the instance (planes: the cluster) as a tint.
 pub fn map_drawables(mapper: &Mapper<'_>) -> Vec<Drawable> {
-    raycast::drawables(
-        |f| mapper.for_each_primitive(f),
-        |prim| match prim {
-            Primitive::Plane(p) => blend(PLANE_COLOUR, id_colour(p.cluster as u32), TINT),
-            Primitive::Sq(s) => blend(SQ_COLOUR, id_colour(s.instance as u32 * 7919), TINT),
-            Primitive::Gmm(g) if g.instance != 0 => blend(GMM_COLOUR, id_colour(g.instance as u32 * 7919), TINT),
-            Primitive::Gmm(_) => GMM_COLOUR,
-        },
-    )
+    raycast::drawables(|f| mapper.for_each_primitive(f), primitive_colour)
+}
+
+/// A primitive's picture colour: its kind's, tinted by its instance (planes: the cluster; world superquadrics,
+/// which carry no instance: the track).
+pub fn primitive_colour(prim: &Primitive<'_>) -> [u8; 3] {
+    match prim {
+        Primitive::Plane(p) => blend(PLANE_COLOUR, id_colour(p.cluster as u32), TINT),
+        Primitive::Sq(s) if s.instance == 0 => blend(SQ_COLOUR, id_colour(s.track as u32 * 7919 + 1), TINT),
+        Primitive::Sq(s) => blend(SQ_COLOUR, id_colour(s.instance as u32 * 7919), TINT),
+        Primitive::Gmm(g) if g.instance != 0 => blend(GMM_COLOUR, id_colour(g.instance as u32 * 7919), TINT),
+        Primitive::Gmm(_) => GMM_COLOUR,
+    }
+}
+
+/// Draws a world map (`m2smap run --world`, world frame) from `view` around all of it, in the frame of the
+/// first camera `first` (its up is the picture's up) with the optics of `camera`, into a PNG at `out`.
+/// Returns the number of pixels that show a primitive.
+pub fn render_world(
+    world: &m2smap_core::world::WorldMap<'_>,
+    first: &m2smap_core::Pose,
+    camera: &m2smap_core::Intrinsics,
+    (w, h): (u32, u32),
+    view: MapView,
+    out: &Path,
+) -> Result<usize> {
+    // World → first camera: p ↦ Rᵀ(p − t).
+    let r_t = m2smap_core::linalg::transpose(&first.rotation);
+    let t = m2smap_core::linalg::scale(m2smap_core::linalg::mat_vec(&r_t, first.translation), -1.0);
+    let items = raycast::drawables(|f| world.for_each_primitive(|_, p| f(&p.moved(&r_t, t))), primitive_colour);
+    let framing = Framing::whole(&items);
+    draw_panels(&items, &framing, &View::camera(camera, w, h), view, "WORLD", out)
 }
 
 /// Copies a rendered image into `img` with its top-left corner at (x0, y0).
@@ -207,22 +230,38 @@ pub enum MapView {
 pub fn render_views(mapper: &Mapper<'_>, frame: &Frame<'_>, view: MapView, out: &Path) -> Result<usize> {
     let (w, h) = (frame.width as u32, frame.height as u32);
     let items = map_drawables(mapper);
-    let camera = View::camera(&frame.intrinsics, w, h);
     let framing = Framing::of(&items);
+    draw_panels(&items, &framing, &View::camera(&frame.intrinsics, w, h), view, "", out)
+}
+
+/// Draws `items` from `view` (one panel, or four for [`MapView::Orbit`]) framed by `framing`, with the optics of
+/// `camera`, each panel titled (after `prefix`) and with the legend; returns the pixels that show a primitive.
+fn draw_panels(
+    items: &[Drawable],
+    framing: &Framing,
+    camera: &View,
+    view: MapView,
+    prefix: &str,
+    out: &Path,
+) -> Result<usize> {
+    let (w, h) = (camera.width, camera.height);
+    let space = if prefix.is_empty() { "" } else { " " };
     let panels: Vec<(Viewpoint, String)> = match view {
         MapView::Orbit => [45.0f32, 135.0, 225.0, 315.0]
             .iter()
-            .map(|&a| (Viewpoint::Orbit { azimuth: a.to_radians() }, format!("ORBIT {a:.0} DEG:")))
+            .map(|&a| (Viewpoint::Orbit { azimuth: a.to_radians() }, format!("{prefix}{space}ORBIT {a:.0} DEG:")))
             .collect(),
-        MapView::OrbitAt(a) => vec![(Viewpoint::Orbit { azimuth: a.to_radians() }, format!("ORBIT {a:.0} DEG:"))],
-        MapView::Top => vec![(Viewpoint::Top, "TOP:".to_owned())],
+        MapView::OrbitAt(a) => {
+            vec![(Viewpoint::Orbit { azimuth: a.to_radians() }, format!("{prefix}{space}ORBIT {a:.0} DEG:"))]
+        }
+        MapView::Top => vec![(Viewpoint::Top, format!("{prefix}{space}TOP:"))],
     };
     let (cols, rows) = if panels.len() > 1 { (2, 2) } else { (1, 1) };
     let mut img = RgbImage::new(cols * w, rows * h);
     let mut drawn = 0;
     for (k, (viewpoint, title)) in panels.iter().enumerate() {
         let (x0, y0) = ((k as u32 % cols) * w, (k as u32 / cols) * h);
-        let image = raycast::render(&items, &framing.view(*viewpoint, &camera), camera.origin, BACKGROUND);
+        let image = raycast::render(items, &framing.view(*viewpoint, camera), camera.origin, BACKGROUND);
         drawn += image.kind.iter().filter(|k| k.is_some()).count();
         blit(&mut img, &image, x0, y0);
         legend(&mut img, x0, y0, title);

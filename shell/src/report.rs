@@ -57,6 +57,9 @@ pub const BASELINES: [Variant; 3] = [Variant::Mmq, Variant::Mmp, Variant::Mmog];
 /// The rows of Table II (the ablation): `full`, the paper's rules alone, and the paper's two ablations.
 pub const ABLATION: [Variant; 4] = [Variant::Full, Variant::Paper, Variant::Pmsao, Variant::Wsqa];
 
+/// The methods whose runs also build a world map: M2-SMap and the Gaussian-only map it is compared with.
+pub const WORLD_METHODS: [Variant; 2] = [Variant::Full, Variant::Mmog];
+
 /// The name a method has in the paper's tables.
 pub fn method_name(v: Variant) -> &'static str {
     match v {
@@ -95,6 +98,12 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
     let mut all = Vec::new();
     for (path, name) in opts.datasets.iter().zip(dataset_names(&opts.datasets)) {
         // One run of `path` with `variant` (and the segmenter's masks instead of the dataset's) into `dir`.
+        // `full` and `mmog` also build the world map (docs/pipeline.md, stage 11) when every frame has a pose.
+        let posed = crate::dataset::Dataset::open(path, None)
+            .is_ok_and(|d| d.frames.iter().take(opts.frames.unwrap_or(usize::MAX)).all(|f| f.pose.is_some()));
+        let world_of = |variant: Variant, dir: &str| {
+            (posed && WORLD_METHODS.contains(&variant)).then(|| opts.out.join(&name).join(dir).join("world"))
+        };
         let run_opts = |variant: Variant, segmenter: Option<crate::run::Segmenter>, dir: &str| RunOptions {
             dataset: path.clone(),
             out: opts.out.join(&name).join(dir),
@@ -108,7 +117,7 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
             segmenter,
             faults: None,
             progress: false,
-            world: None,
+            world: if segmenter.is_none() { world_of(variant, dir) } else { None },
         };
         let mut runs = Vec::new();
         for v in Variant::ALL {
@@ -176,6 +185,84 @@ pub fn write_report(out: &Path, datasets: &[DatasetRuns]) -> Result<()> {
     let png = out.join("comparison.png");
     draw_comparison(BitMapBackend::new(&png, FIGURE_SIZE).into_drawing_area(), datasets)
         .with_context(|| format!("{}: cannot draw", png.display()))?;
+    let growth = world_growth(out, datasets);
+    if !growth.is_empty() {
+        let svg = out.join("world_size.svg");
+        draw_world_size(SVGBackend::new(&svg, FIGURE_SIZE).into_drawing_area(), &growth)
+            .with_context(|| format!("{}: cannot draw", svg.display()))?;
+        let png = out.join("world_size.png");
+        draw_world_size(BitMapBackend::new(&png, FIGURE_SIZE).into_drawing_area(), &growth)
+            .with_context(|| format!("{}: cannot draw", png.display()))?;
+    }
+    Ok(())
+}
+
+/// World-map bytes after each frame, per dataset and world method, read from the runs' `world/world.jsonl`.
+pub type WorldGrowth = Vec<(String, Vec<(Variant, Vec<f64>)>)>;
+
+/// The world-map growth of every dataset whose runs built a world map.
+fn world_growth(out: &Path, datasets: &[DatasetRuns]) -> WorldGrowth {
+    datasets
+        .iter()
+        .filter_map(|d| {
+            let lines: Vec<(Variant, Vec<f64>)> = WORLD_METHODS
+                .iter()
+                .filter_map(|&v| {
+                    let path = out.join(&d.name).join(v.name()).join("world").join("world.jsonl");
+                    let text = fs::read_to_string(path).ok()?;
+                    let bytes = text
+                        .lines()
+                        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+                        .filter_map(|j| j["world_bytes"].as_f64())
+                        .collect();
+                    Some((v, bytes))
+                })
+                .collect();
+            (!lines.is_empty()).then(|| (d.name.clone(), lines))
+        })
+        .collect()
+}
+
+/// Draws the world-map size against frames: one panel per dataset, one line per world method.
+pub fn draw_world_size<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, growth: &WorldGrowth) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let panels = root.split_evenly((1, growth.len().max(1)));
+    for (panel, (name, lines)) in panels.iter().zip(growth) {
+        let frames = lines.iter().map(|(_, b)| b.len()).max().unwrap_or(1).max(2);
+        let top = lines.iter().flat_map(|(_, b)| b.iter().copied()).fold(0.0f64, f64::max) / 1024.0;
+        let top = if top > 0.0 { top * 1.25 } else { 1.0 };
+        let mut chart = ChartBuilder::on(panel)
+            .caption(format!("{name}: world map (KiB)"), ("sans-serif", 18))
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0.0..(frames - 1) as f64, 0.0..top)
+            .map_err(|e| anyhow!("{e}"))?;
+        chart.configure_mesh().x_desc("frame").label_style(("sans-serif", 13)).draw().map_err(|e| anyhow!("{e}"))?;
+        for (v, bytes) in lines {
+            let colour = method_colour(*v);
+            chart
+                .draw_series(LineSeries::new(
+                    bytes.iter().enumerate().map(|(k, b)| (k as f64, b / 1024.0)),
+                    colour.stroke_width(2),
+                ))
+                .map_err(|e| anyhow!("{e}"))?
+                .label(method_name(*v))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], colour.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+    }
+    root.present().map_err(|e| anyhow!("{e}"))?;
     Ok(())
 }
 
@@ -349,7 +436,52 @@ pub fn report_markdown(datasets: &[DatasetRuns]) -> String {
     }
     map_level_table(&mut s, datasets);
     mask_table(&mut s, datasets);
+    world_table(&mut s, datasets);
     s
+}
+
+/// The "World map" section: `full` and `mmog` world maps over each posed dataset (`run --world`).
+fn world_table(s: &mut String, datasets: &[DatasetRuns]) {
+    let rows: Vec<(&DatasetRuns, Variant, &crate::world::WorldSummary)> = datasets
+        .iter()
+        .flat_map(|d| WORLD_METHODS.iter().filter_map(move |&v| d.summary(v)?.world.as_ref().map(|w| (d, v, w))))
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    let _ = writeln!(s, "\n## World map\n");
+    let _ = writeln!(s, "![world map size](world_size.svg)\n");
+    let _ = writeln!(
+        s,
+        "One map of each posed sequence (`run --world`, docs/pipeline.md stage 11): primitives and `world.bin` \
+         bytes after the last frame, mean delta bytes per frame and their share of the frame maps, and G2R / R2G \
+         against the union of every frame's observed points (1 cm grid; superquadric samples facing one of the \
+         run's cameras). \"×\" is the mmog world map's size over this one's.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| Dataset | Method | planes | SQs | GMMs | world (B) | × | delta (B/frame) | delta / frame map | G2R (m) | R2G (m) | receiver identical |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+    );
+    for (d, v, w) in rows {
+        let mmog = d.summary(Variant::Mmog).and_then(|m| m.world.as_ref()).map(|m| m.world_bytes as f64);
+        let ratio = mmog.map(|m| m / w.world_bytes.max(1) as f64);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {:.0} | {:.3} | {} | {} | {} |",
+            d.name,
+            method_name(v),
+            w.planes,
+            w.sqs,
+            w.gmms,
+            w.world_bytes,
+            ratio.map_or_else(|| "–".to_string(), |r| format!("{r:.2}")),
+            w.delta_bytes_mean,
+            w.delta_to_frame_map,
+            cell_m(w.g2r_rmse_m),
+            cell_m(w.r2g_rmse_m),
+            if w.receiver_identical { "yes" } else { "**no**" }
+        );
+    }
 }
 
 /// The "Instance masks" section: the dataset's masks and the geometric segmenter's, judged against `gt/`.
