@@ -81,7 +81,7 @@ fn render_world(
     }
     let first = first.ok_or_else(|| anyhow!("no frame mapped"))?;
     let c = &s.dataset.camera;
-    let k = m2smap_core::Intrinsics { fx: c.fx as f32, fy: c.fy as f32, cx: c.cx as f32, cy: c.cy as f32 };
+    let k = m2smap_core::Intrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy };
     render::render_world(&world, &first, &k, (c.width as u32, c.height as u32), view, out)?;
     let [planes, sqs, gmms] = world.primitive_counts();
     println!("world map of frames 0..={last}: {planes} planes, {sqs} SQs, {gmms} GMMs -> {}", out.display());
