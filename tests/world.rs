@@ -75,7 +75,7 @@ fn a_synthetic_world_map_lies_on_the_true_surfaces_and_its_deltas_rebuild_it() {
     let rms = (sum / n as f64).sqrt();
     assert!(n > 500 && rms <= 0.015, "world samples {n}, RMS to the true surfaces {rms:.4} m");
     // The kitchen's floor and its table top, one world plane each (its frames see them 12 times).
-    assert!(planes >= 2 && planes <= 4, "{planes} world planes");
+    assert!((2..=4).contains(&planes), "{planes} world planes");
     assert!(s["g2r_rmse_m"].as_f64().unwrap() <= 0.02 && s["r2g_rmse_m"].as_f64().unwrap() <= 0.03, "{s}");
     // The world map stays smaller than the sum of the frame maps it holds.
     let lines = world_lines(&out);
