@@ -52,19 +52,19 @@ pub const WORLD_GRID_BYTES: usize = WORLD_GRID * WORLD_GRID / 8;
 /// Variance added to both covariances in the Gaussian merge test, m² ((5 mm)²: pose and sensor noise).
 pub const MERGE_NOISE_VAR: f32 = 2.5e-5;
 /// A shown superquadric turns to its accumulated orientation once they differ by more than this, degrees.
-pub const PUBLISH_ANGLE_DEG: f32 = 2.0;
+pub const PUBLISH_ANGLE_DEG: f32 = 3.0;
 /// A shown plane takes its accumulated normal and offset once they put it more than this far from the
 /// accumulated plane anywhere within its reach, metres.
-pub const PUBLISH_PLANE_M: f32 = 0.01;
+pub const PUBLISH_PLANE_M: f32 = 0.02;
 /// A shown primitive moves to its accumulated position once they differ by more than this, metres (a Gaussian:
 /// or by more than a tenth of its largest σ, whichever is larger).
-pub const PUBLISH_MOVE_M: f32 = 0.01;
+pub const PUBLISH_MOVE_M: f32 = 0.02;
 /// A shown superquadric or Gaussian takes its accumulated shape once a half-axis (a covariance, in Frobenius
 /// norm) changes by more than this fraction, or its support doubles.
 pub const PUBLISH_SHAPE_CHANGE: f32 = 0.2;
 /// New cells of a world plane are shown once they number more than this share of its shown cells (or the
 /// pending list is full).
-pub const PUBLISH_CELL_SHARE: f32 = 0.15;
+pub const PUBLISH_CELL_SHARE: f32 = 0.2;
 /// A Gaussian whose mean lies within this distance of a world superquadric's surface (or inside it), or of a
 /// world plane it is parallel to, over an occupied cell, is already explained by that primitive, metres.
 pub const EXPLAINED_M: f32 = 0.03;
@@ -74,6 +74,9 @@ pub const PLANE_BEND_OFFSETS: f32 = 3.0;
 /// A world object is shown once its superquadric was seen in this many frames (a fit that no later frame
 /// confirms stays out of the map, and leaves it after `track_max_missed` frames unseen).
 pub const OBJECT_MIN_FRAMES: u16 = 3;
+/// A world Gaussian is shown once this many frames saw it (a patch seen once, often a fragment that a later
+/// frame explains or merges differently, costs no radio bytes).
+pub const GAUSSIAN_MIN_FRAMES: u16 = 2;
 /// New cells a world plane holds back before showing them.
 pub const PENDING_CELLS: usize = 1024;
 
@@ -156,6 +159,13 @@ pub struct WorldObject {
     pub sent: u8,
 }
 
+impl WorldGaussian {
+    /// Whether it has been seen often enough to be shown.
+    pub fn is_confirmed(&self) -> bool {
+        self.frames_seen >= GAUSSIAN_MIN_FRAMES
+    }
+}
+
 impl WorldObject {
     /// Whether it has been seen often enough to be shown.
     pub fn is_confirmed(&self) -> bool {
@@ -187,6 +197,8 @@ pub struct WorldGaussian {
     pub last_frame: u32,
     /// CRC-32 of the record last sent in a delta.
     pub sent_crc: u32,
+    /// Frames it was seen in (saturating); it is shown from [`GAUSSIAN_MIN_FRAMES`] on.
+    pub frames_seen: u16,
     /// The covariance it shows (to compare the accumulated one with).
     pub shown_covariance: Sym3,
     /// Shown: the Gaussian of the map.
@@ -336,7 +348,8 @@ impl<'s> WorldMap<'s> {
     /// Shown planes, superquadrics and Gaussians (the primitives of the map).
     pub fn primitive_counts(&self) -> [usize; 3] {
         let confirmed = self.objects.as_slice().iter().filter(|o| o.is_confirmed()).count();
-        [self.planes.len(), confirmed, self.gaussians.len()]
+        let shown = self.gaussians.as_slice().iter().filter(|g| g.is_confirmed()).count();
+        [self.planes.len(), confirmed, shown]
     }
 
     /// Pool use of planes, objects, Gaussians and pending removals (peaks over the map's lifetime).
@@ -482,24 +495,11 @@ impl<'s> WorldMap<'s> {
         }
         w.support = w.support.saturating_add(wb as u32);
         w.last_frame = frame;
-        // Show the new orientation and offset once they are a step away: e1 projected onto the new plane, e2
-        // completing the frame, the origin moved onto it (cells keep their indices).
-        // A step: the shown plane is more than PUBLISH_PLANE_M off the accumulated one anywhere within its
-        // reach (offset at the origin plus the tilt over the reach).
+        // A step of the geometry: the shown plane is more than PUBLISH_PLANE_M off the accumulated one
+        // anywhere within its reach (offset at the origin plus the tilt over the reach).
         let tilt = linalg::norm(linalg::cross(w.normal, w.acc_normal));
         let offset = libm::fabsf(linalg::dot(w.acc_normal, w.origin) - w.acc_offset);
-        if offset + tilt * w.reach > PUBLISH_PLANE_M {
-            stats.planes_moved += 1;
-            let normal = w.acc_normal;
-            let e1 = linalg::normalize_or(linalg::sub(w.e1, linalg::scale(normal, linalg::dot(w.e1, normal))), w.e1);
-            w.e2 = linalg::cross(normal, e1);
-            w.e1 = e1;
-            w.normal = normal;
-            w.origin = linalg::add(w.origin, linalg::scale(normal, w.acc_offset - linalg::dot(normal, w.origin)));
-            w.thickness = w.acc_thickness;
-            w.eigen_ratio = w.acc_ratio;
-            w.colour = w.acc_colour.map(|x| libm::roundf(x.clamp(0.0, 255.0)) as u8);
-        }
+        let moved = offset + tilt * w.reach > PUBLISH_PLANE_M;
         // Cells: 2 × 2 points per frame cell, into the shown grid. New cells wait in the pending list until
         // they are a step (PUBLISH_CELL_SHARE of the shown cells) or do not fit; then all are shown at once.
         let (fe1, fe2) = (linalg::column(&p.rotation, 0), linalg::column(&p.rotation, 1));
@@ -542,7 +542,21 @@ impl<'s> WorldMap<'s> {
             }
         });
         w.reach = reach;
-        if overflow || w.pending_len as f32 > PUBLISH_CELL_SHARE * w.occupied as f32 {
+        let grown = overflow || w.pending_len as f32 > PUBLISH_CELL_SHARE * w.occupied as f32;
+        // Either step shows both (the record is sent anyway): the accumulated normal and offset, e1 projected
+        // onto the new plane, e2 completing the frame, the origin moved onto it (cells keep their indices), and
+        // every pending cell.
+        if moved || grown {
+            stats.planes_moved += moved as u32;
+            let normal = w.acc_normal;
+            let e1 = linalg::normalize_or(linalg::sub(w.e1, linalg::scale(normal, linalg::dot(w.e1, normal))), w.e1);
+            w.e2 = linalg::cross(normal, e1);
+            w.e1 = e1;
+            w.normal = normal;
+            w.origin = linalg::add(w.origin, linalg::scale(normal, w.acc_offset - linalg::dot(normal, w.origin)));
+            w.thickness = w.acc_thickness;
+            w.eigen_ratio = w.acc_ratio;
+            w.colour = w.acc_colour.map(|x| libm::roundf(x.clamp(0.0, 255.0)) as u8);
             for &k in w.pending.get(..w.pending_len as usize).unwrap_or(&[]) {
                 set_cell(&mut w.cells, k as usize);
             }
@@ -555,7 +569,7 @@ impl<'s> WorldMap<'s> {
                 });
             }
             w.occupied = w.cells.iter().map(|b| b.count_ones()).sum();
-            stats.planes_grown += 1;
+            stats.planes_grown += grown as u32;
         }
         w.clipped_cells = w.clipped_cells.saturating_add(clipped);
         stats.cells_clipped += clipped;
@@ -685,6 +699,7 @@ impl<'s> WorldMap<'s> {
                 }
                 w.count = m.count;
                 w.last_frame = frame;
+                w.frames_seen = w.frames_seen.saturating_add(1);
                 publish_gaussian(w, false);
                 stats.gmms_merged += 1;
             }
@@ -720,6 +735,7 @@ impl<'s> WorldMap<'s> {
             class: obs.class,
             score: obs.score,
             last_frame: frame,
+            frames_seen: 1,
             ..WorldGaussian::zeroed()
         };
         publish_gaussian(&mut w, true);
@@ -786,7 +802,7 @@ impl<'s> WorldMap<'s> {
         for o in self.objects.as_slice().iter().filter(|o| o.is_confirmed()) {
             f(o.id, &Primitive::Sq(o.shown));
         }
-        for g in self.gaussians.as_slice() {
+        for g in self.gaussians.as_slice().iter().filter(|g| g.is_confirmed()) {
             f(g.id, &Primitive::Gmm(g.shown));
         }
     }
@@ -836,7 +852,7 @@ impl<'s> WorldMap<'s> {
         for o in self.objects.as_slice().iter().filter(|o| o.is_confirmed()) {
             one(o.id, &Primitive::Sq(o.shown), o.sent, o.sent_crc)?;
         }
-        for g in self.gaussians.as_slice() {
+        for g in self.gaussians.as_slice().iter().filter(|g| g.is_confirmed()) {
             one(g.id, &Primitive::Gmm(g.shown), g.sent, g.sent_crc)?;
         }
         Ok(())
@@ -880,7 +896,7 @@ impl<'s> WorldMap<'s> {
             o.sent_crc = wire::crc32(record.get(..n).unwrap_or(&[]));
             o.sent = 1;
         }
-        for g in self.gaussians.as_mut_slice() {
+        for g in self.gaussians.as_mut_slice().iter_mut().filter(|g| g.is_confirmed()) {
             let n = wire::write_world_record(g.id, &Primitive::Gmm(g.shown), &mut record)?;
             g.sent_crc = wire::crc32(record.get(..n).unwrap_or(&[]));
             g.sent = 1;
@@ -934,12 +950,12 @@ pub fn plane_view(p: &WorldPlane, g_p: f32) -> MapPlane<'_> {
 /// than [`PUBLISH_SHAPE_CHANGE`] of its Frobenius norm, or the support doubled.
 fn publish_gaussian(w: &mut WorldGaussian, force: bool) {
     let shown = &w.shown;
-    let reach = PUBLISH_MOVE_M.max(0.25 * shown.sigmas[0]);
+    let reach = PUBLISH_MOVE_M.max(0.5 * shown.sigmas[0]);
     let moved = linalg::norm(linalg::sub(shown.mean, w.mean)) > reach;
     let d: Sym3 = core::array::from_fn(|k| {
         w.covariance.get(k).copied().unwrap_or(0.0) - w.shown_covariance.get(k).copied().unwrap_or(0.0)
     });
-    let reshaped = frobenius2(d) > PUBLISH_SHAPE_CHANGE * PUBLISH_SHAPE_CHANGE * frobenius2(w.shown_covariance);
+    let reshaped = frobenius2(d) > 0.16 * frobenius2(w.shown_covariance);
     let grown = w.count / 2 > shown.count;
     if !(force || moved || reshaped || grown) {
         return;
@@ -1242,26 +1258,35 @@ mod tests {
         let mut storage = bytemuck::zeroed_box::<WorldStorage<1, 1, 2, 4>>();
         let mut world = WorldMap::new(&mut storage);
         let mut rx = Receiver::default();
-        world
-            .integrate(0, &identity(), &params, |f| {
-                f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 10)));
-                f(&Primitive::Gmm(gmm([1.0, 0.0, 2.0], 50)));
-            })
-            .unwrap();
-        rx.apply(&delta(&mut world));
-        assert_eq!(rx.world(), bytes(&world));
+        // Two patches, each seen in two frames: confirmed, shown and sent.
+        for frame in 0..2 {
+            world
+                .integrate(frame, &identity(), &params, |f| {
+                    f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 10)));
+                    f(&Primitive::Gmm(gmm([1.0, 0.0, 2.0], 50)));
+                })
+                .unwrap();
+            rx.apply(&delta(&mut world));
+            assert_eq!(rx.world(), bytes(&world));
+        }
+        assert_eq!(world.primitive_counts()[2], 2);
         let weakest = world.gaussians()[0].id;
-        // A stronger newcomer evicts the weakest; a weaker one is dropped.
+        // A stronger newcomer (100 points against 20) evicts the weakest; a weaker one is dropped.
         let stats =
-            world.integrate(1, &identity(), &params, |f| f(&Primitive::Gmm(gmm([-1.0, 0.0, 2.0], 100)))).unwrap();
+            world.integrate(2, &identity(), &params, |f| f(&Primitive::Gmm(gmm([-1.0, 0.0, 2.0], 100)))).unwrap();
         assert_eq!((stats.gmms_evicted, stats.gmms_created, stats.gmms_dropped), (1, 1, 0));
-        let stats = world.integrate(2, &identity(), &params, |f| f(&Primitive::Gmm(gmm([2.0, 0.0, 2.0], 5)))).unwrap();
-        assert_eq!((stats.gmms_evicted, stats.gmms_dropped), (0, 1));
         assert!(world.gaussians().iter().all(|g| g.id != weakest));
-        let d = delta(&mut world);
-        let h = rx.apply(&d);
-        assert_eq!((h.upserts, h.removals), (1, 1));
+        // The newcomer is not shown before a second frame confirms it: the delta only removes.
+        let h = rx.apply(&delta(&mut world));
+        assert_eq!((h.upserts, h.removals), (0, 1));
         assert_eq!(rx.world(), bytes(&world));
+        let stats = world.integrate(3, &identity(), &params, |f| f(&Primitive::Gmm(gmm([2.0, 0.0, 2.0], 5)))).unwrap();
+        assert_eq!((stats.gmms_evicted, stats.gmms_dropped), (0, 1));
+        world.integrate(4, &identity(), &params, |f| f(&Primitive::Gmm(gmm([-1.0, 0.0, 2.0], 100)))).unwrap();
+        let h = rx.apply(&delta(&mut world));
+        assert_eq!((h.upserts, h.removals), (1, 0));
+        assert_eq!(rx.world(), bytes(&world));
+        assert_eq!(world.primitive_counts()[2], 2);
     }
 
     #[test]
@@ -1358,7 +1383,9 @@ mod tests {
         let params = Params::default();
         let mut storage = bytemuck::zeroed_box::<Small>();
         let mut world = WorldMap::new(&mut storage);
-        world.integrate(0, &identity(), &params, |f| f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 100)))).unwrap();
+        for frame in 0..2 {
+            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Gmm(gmm([0.0, 0.0, 2.0], 100)))).unwrap();
+        }
         let map = bytes(&world);
         let d = delta(&mut world);
         let mut n = 0;
