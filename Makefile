@@ -20,13 +20,14 @@ FUZZ_TARGETS := wire_decode mapper_frame masks_parse lists_parse
 demo:
 	$(CARGO) build --release -p m2smap
 	./target/release/m2smap synth --scene tabletop --frames 10 --seed 1 --out $(DEMO)/tabletop
-	./target/release/m2smap run $(DEMO)/tabletop --out $(DEMO)/tabletop-run
+	./target/release/m2smap run $(DEMO)/tabletop --out $(DEMO)/tabletop-run --world $(DEMO)/tabletop-world
 	./target/release/m2smap run $(DEMO)/tabletop --out $(DEMO)/tabletop-run-mcu --profile mcu
+	./target/release/m2smap render $(DEMO)/tabletop --frame 9 --world --out $(DEMO)/tabletop-world.png
 	./target/release/m2smap render $(DEMO)/tabletop --frame 5 --out $(DEMO)/tabletop-frame5.png
 	./target/release/m2smap export $(DEMO)/tabletop --frame 5 --ply $(DEMO)/tabletop-frame5.ply
 	@if [ -d $(SHARED)/tum_fr3_cabinet ]; then \
 		./target/release/m2smap render $(SHARED)/tum_fr3_cabinet --frame 12 --out $(DEMO)/cabinet-frame12.png; fi
-	@echo "outputs: $(DEMO)/tabletop-run/summary.json and frames.jsonl, renders and a PLY in $(DEMO)"
+	@echo "outputs: $(DEMO)/tabletop-run/summary.json and frames.jsonl, the world map in $(DEMO)/tabletop-world, renders and a PLY in $(DEMO)"
 
 ## Every test: the no_std core for the Cortex-M7 target, the firmware under QEMU (when available), then the
 ## workspace tests (release: the real-data runs are fast).
