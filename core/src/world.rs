@@ -1,9 +1,10 @@
-//! Stage 11 (an m2smap extension beyond the paper): the world map, one map of everything a posed sequence has
+//! Stage 12 (an m2smap extension beyond the paper): the world map, one map of everything a posed sequence has
 //! seen, in caller-owned pools of fixed capacity, with stable ids and a delta stream for a thin radio link.
 //!
 //! Each frame's map (camera frame) is fused into world-frame primitives ([`WorldMap::integrate`]):
 //! - **planes**: a frame plane joins the world plane whose normal lies within `world_plane_angle_deg` and whose
-//!   surface passes within `world_plane_offset` of the frame plane's centroid (the nearest such); its occupied
+//!   surface passes within `world_plane_offset` of the frame plane's centroid (the nearest such; its farthest
+//!   cell within [`PLANE_BEND_OFFSETS`] offsets); its occupied
 //!   cells are drawn into the world plane's own [`WORLD_GRID`] × [`WORLD_GRID`] grid (each by its centre; the
 //!   holes a rotated grid leaves are filled when cells are shown: an unset cell with three set 4-neighbours),
 //!   and its normal and offset are averaged, weighted by occupied cells. Otherwise it starts a new world plane.
@@ -13,14 +14,17 @@
 //!   into the world frame updates the world object of its track ([`crate::track`]). A track seen
 //!   for the first time adopts the world object of the same class whose centre lies within max(`d_max`, its
 //!   largest half-axis) and that no track updated this frame — a track that was retired and restarted keeps
-//!   its world object and id. A retired track's object stays in the map, static.
+//!   its world object and id. A retired track's object stays in the map, static. An object is shown once
+//!   [`OBJECT_MIN_FRAMES`] frames saw it.
 //! - **Gaussians** (GMMap-style moment matching): a frame Gaussian merges into the world Gaussian with the
 //!   smallest squared Mahalanobis distance d² = Δᵀ(Σ_w + Σ_f + σ₀²I)⁻¹Δ ≤ `world_gmm_gate` (σ₀ = 5 mm) whose
 //!   merged total variance stays within `world_gmm_growth`² of the larger of the two (a re-observation merges,
 //!   a neighbouring patch does not); the merged mean, covariance and support are those of the union of their
 //!   points ([`linalg::Moments::add_gaussian`]). Otherwise it is added; when the pool is full, the world
 //!   Gaussian with the least support (then the one unseen longest) that this frame has not touched is evicted,
-//!   if its support is below the newcomer's; else the newcomer is dropped. Both are counted.
+//!   if its support is below the newcomer's; else the newcomer is dropped. Both are counted. A Gaussian is
+//!   shown once [`GAUSSIAN_MIN_FRAMES`] frames saw it; one that a shown plane or object explains
+//!   ([`EXPLAINED_M`]) is not added, or leaves.
 //!
 //! Pools keep their elements in increasing id order (new ids are appended, removal shifts), so the map and its
 //! deltas are written in (kind, id) order without sorting. Everything is deterministic: the same frames give
@@ -28,13 +32,14 @@
 //!
 //! **Published state.** Each world primitive keeps what it has accumulated (running means, merged moments,
 //! new plane cells) apart from what it shows: the map, `world.bin` and the deltas are written from the shown
-//! state only, which follows the accumulated one in steps ([`PUBLISH_ANGLE_DEG`], [`PUBLISH_MOVE_M`],
-//! [`PUBLISH_SHAPE_CHANGE`], [`PUBLISH_CELL_SHARE`]). A re-observation that changes a primitive by less than a
+//! state only, which follows the accumulated one in steps ([`PUBLISH_PLANE_M`], [`PUBLISH_CELL_SHARE`],
+//! [`PUBLISH_ANGLE_DEG`], [`PUBLISH_MOVE_M`], [`PUBLISH_SHAPE_CHANGE`], [`PUBLISH_GMM_SHAPE_CHANGE`]). A re-observation that changes a primitive by less than a
 //! step costs no radio bytes; the shown map is never more than a step behind.
 //!
 //! **Deltas** ([`WorldMap::encode_delta_streaming`]): each primitive remembers the CRC-32 of the record it last
-//! sent; a delta carries the new records, those whose bytes changed, and the (kind, id) of removed ones. A receiver applying every delta in order holds the
-//! sender's records and writes a `world.bin` identical to the sender's ([`crate::wire::encode_world_records`]).
+//! sent; a delta carries the new records, those whose bytes changed, and the (kind, id) of removed ones. A
+//! receiver applying every delta in order holds the sender's records and writes a `world.bin` identical to the
+//! sender's ([`crate::wire::encode_world_records`]).
 //! Two different records with the same CRC-32 (a 2⁻³² chance per changed record) would not be sent.
 
 use bytemuck::Zeroable;
@@ -58,12 +63,15 @@ pub const PUBLISH_ANGLE_DEG: f32 = 3.0;
 /// A shown plane takes its accumulated normal and offset once they put it more than this far from the
 /// accumulated plane anywhere within its reach, metres.
 pub const PUBLISH_PLANE_M: f32 = 0.02;
-/// A shown primitive moves to its accumulated position once they differ by more than this, metres (a Gaussian:
-/// or by more than a tenth of its largest σ, whichever is larger).
+/// A shown superquadric or Gaussian moves to its accumulated position once they differ by more than this,
+/// metres (a Gaussian: or by more than half its largest σ, whichever is larger).
 pub const PUBLISH_MOVE_M: f32 = 0.02;
-/// A shown superquadric or Gaussian takes its accumulated shape once a half-axis (a covariance, in Frobenius
-/// norm) changes by more than this fraction, or its support doubles.
+/// A shown superquadric takes its accumulated shape once a half-axis changes by more than this fraction (an
+/// exponent by more than this).
 pub const PUBLISH_SHAPE_CHANGE: f32 = 0.2;
+/// A shown Gaussian takes its accumulated covariance once it changes by more than this fraction (Frobenius
+/// norm), or its support doubles.
+pub const PUBLISH_GMM_SHAPE_CHANGE: f32 = 0.4;
 /// New cells of a world plane are shown once they number more than this share of its shown cells (or the
 /// pending list is full).
 pub const PUBLISH_CELL_SHARE: f32 = 0.2;
@@ -106,7 +114,7 @@ pub struct WorldPlane {
     pub acc_normal: Vec3,
     /// Accumulated offset d of n · x = d, metres.
     pub acc_offset: f32,
-    /// Accumulated thickness, λ2/λ0 and colour (support-weighted means).
+    /// Accumulated thickness σ2 (support-weighted mean), metres.
     pub acc_thickness: f32,
     /// Accumulated λ2/λ0.
     pub acc_ratio: f32,
@@ -361,7 +369,9 @@ impl<'s> WorldMap<'s> {
 
     /// Fuses the map of frame `frame` (camera frame; `primitives` feeds every primitive, as
     /// [`crate::Mapper::for_each_primitive`] does) into the world map, with its camera-to-world `pose`. A
-    /// frame with a bad pose or an old frame number is refused and changes nothing.
+    /// frame with a bad pose or an old frame number is refused and changes nothing. Removals wait in the
+    /// storage's removal list until a delta carries them ([`WorldMap::encode_delta_streaming`]); when it is
+    /// full, sent primitives stay (no eviction, no removal) until the next delta.
     pub fn integrate(
         &mut self,
         frame: u32,
@@ -947,8 +957,8 @@ pub fn plane_view(p: &WorldPlane, g_p: f32) -> MapPlane<'_> {
 }
 
 /// Shows a world Gaussian's accumulated state when `force`, or when it is a step away from the shown one: the
-/// mean moved by more than max([`PUBLISH_MOVE_M`], a tenth of the largest σ), the covariance changed by more
-/// than [`PUBLISH_SHAPE_CHANGE`] of its Frobenius norm, or the support doubled.
+/// mean moved by more than max([`PUBLISH_MOVE_M`], half the largest σ), the covariance changed by more than
+/// [`PUBLISH_GMM_SHAPE_CHANGE`] of its Frobenius norm, or the support doubled.
 fn publish_gaussian(w: &mut WorldGaussian, force: bool) {
     let shown = &w.shown;
     let reach = PUBLISH_MOVE_M.max(0.5 * shown.sigmas[0]);
@@ -956,7 +966,7 @@ fn publish_gaussian(w: &mut WorldGaussian, force: bool) {
     let d: Sym3 = core::array::from_fn(|k| {
         w.covariance.get(k).copied().unwrap_or(0.0) - w.shown_covariance.get(k).copied().unwrap_or(0.0)
     });
-    let reshaped = frobenius2(d) > 0.16 * frobenius2(w.shown_covariance);
+    let reshaped = frobenius2(d) > PUBLISH_GMM_SHAPE_CHANGE * PUBLISH_GMM_SHAPE_CHANGE * frobenius2(w.shown_covariance);
     let grown = w.count / 2 > shown.count;
     if !(force || moved || reshaped || grown) {
         return;

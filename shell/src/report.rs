@@ -98,7 +98,7 @@ pub fn evaluate(opts: &EvalOptions) -> Result<Vec<DatasetRuns>> {
     let mut all = Vec::new();
     for (path, name) in opts.datasets.iter().zip(dataset_names(&opts.datasets)) {
         // One run of `path` with `variant` (and the segmenter's masks instead of the dataset's) into `dir`.
-        // `full` and `mmog` also build the world map (docs/pipeline.md, stage 11) when every frame has a pose.
+        // `full` and `mmog` also build the world map (docs/pipeline.md, stage 12) when every frame has a pose.
         let posed = crate::dataset::Dataset::open(path, None)
             .is_ok_and(|d| d.frames.iter().take(opts.frames.unwrap_or(usize::MAX)).all(|f| f.pose.is_some()));
         let world_of = |variant: Variant, dir: &str| {
@@ -453,7 +453,7 @@ fn world_table(s: &mut String, datasets: &[DatasetRuns]) {
     let _ = writeln!(s, "![world map size](world_size.svg)\n");
     let _ = writeln!(
         s,
-        "One map of each posed sequence (`run --world`, docs/pipeline.md stage 11): primitives and `world.bin` \
+        "One map of each posed sequence (`run --world`, docs/pipeline.md stage 12): primitives and `world.bin` \
          bytes after the last frame, mean delta bytes per frame and their share of the frame maps, and G2R / R2G \
          against the union of every frame's observed points (1 cm grid; superquadric samples facing one of the \
          run's cameras). \"×\" is the mmog world map's size over this one's.\n"
