@@ -180,7 +180,7 @@ pub fn voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel], r: f3
     let (m, points) = range_moments(range, voxels, r);
     let mut colour = [0u64; 3];
     for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
-        for (c, s) in colour.iter_mut().zip(v.colour_sum) {
+        for (c, s) in colour.iter_mut().zip(v.colour_sums()) {
             *c += s as u64;
         }
     }

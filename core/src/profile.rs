@@ -174,7 +174,7 @@ impl<
 }
 
 /// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included.
-pub type McuStorage = Storage<8192, 16384, 128, 128, 576, 1024, 8, 32, 16, 256, { 640 * 480 }>;
+pub type McuStorage = Storage<8704, 16384, 128, 128, 576, 1024, 8, 32, 32, 256, { 640 * 480 }>;
 
 /// The `host` profile: larger pools for workstation replays (frames up to 1280×1024).
 pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }>;

@@ -56,9 +56,19 @@ pub struct Voxel {
     pub normal: [i16; 3],
     /// Σ (p − corner) over its points, metres.
     pub sum: Vec3,
-    /// Σ RGB over its points.
-    pub colour_sum: [u32; 3],
+    /// Σ R, Σ G and Σ B over its points, 21 bits each, packed little-endian into a 64-bit word held as two
+    /// `u32`s (R in bits 0–20, G in 21–41, B in 42–62); read them with [`Voxel::colour_sums`]. A voxel takes at
+    /// most [`MAX_VOXEL_POINTS`] points, so no sum overflows its field (4 bytes less per voxel than three
+    /// `u32`s: 32 KiB of the mcu profile).
+    pub colour_sum: [u32; 2],
 }
+
+/// Most points a voxel takes (255 × 8 223 < 2²¹, the width of a packed colour sum); later ones are dropped and
+/// counted. A 3 cm voxel holds at most ~2 000 sampled points even at 0.3 m.
+pub const MAX_VOXEL_POINTS: u16 = 8223;
+
+/// Bits of one packed colour sum.
+const COLOUR_SUM_BITS: u32 = 21;
 
 impl Voxel {
     /// Mean of its points, metres.
@@ -70,7 +80,24 @@ impl Voxel {
     /// Mean colour, each channel in [0, 1].
     pub fn colour(&self) -> Vec3 {
         let k = 1.0 / (255.0 * self.count.max(1) as f32);
-        [self.colour_sum[0] as f32 * k, self.colour_sum[1] as f32 * k, self.colour_sum[2] as f32 * k]
+        let [r, g, b] = self.colour_sums();
+        [r as f32 * k, g as f32 * k, b as f32 * k]
+    }
+
+    /// Σ R, Σ G, Σ B over its points.
+    pub fn colour_sums(&self) -> [u32; 3] {
+        let [lo, hi] = self.colour_sum;
+        let packed = lo as u64 | (hi as u64) << 32;
+        let field = (1u64 << COLOUR_SUM_BITS) - 1;
+        [0, 1, 2].map(|k| ((packed >> (k * COLOUR_SUM_BITS)) & field) as u32)
+    }
+
+    /// Adds one point's colour to the sums (the caller keeps the count at most [`MAX_VOXEL_POINTS`]).
+    pub fn add_colour(&mut self, rgb: [u8; 3]) {
+        let [lo, hi] = self.colour_sum;
+        let packed = (lo as u64 | (hi as u64) << 32)
+            + (rgb[0] as u64 | (rgb[1] as u64) << COLOUR_SUM_BITS | (rgb[2] as u64) << (2 * COLOUR_SUM_BITS));
+        self.colour_sum = [packed as u32, (packed >> 32) as u32];
     }
 
     /// Unit normal (dequantised).
@@ -338,16 +365,14 @@ pub fn voxelize(
             stats.dropped_points += 1;
             return;
         };
-        if v.count == u16::MAX {
+        if v.count >= MAX_VOXEL_POINTS {
             stats.dropped_points += 1;
             return;
         }
         let corner = key_corner(key, r);
         v.count += 1;
         v.sum = linalg::add(v.sum, linalg::sub(p.xyz, corner));
-        for (s, c) in v.colour_sum.iter_mut().zip(p.rgb) {
-            *s += c as u32;
-        }
+        v.add_colour(p.rgb);
     });
     stats
 }
@@ -637,5 +662,34 @@ fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params
                 let _ = seeds.push(SeedCell { key, voxels: 1, best: i as u16, best_d2: d2 });
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn packed_colour_sums_are_exact_up_to_the_largest_voxel() {
+        let mut v = Voxel::zeroed();
+        // The worst case: every point white, as many as a voxel takes.
+        for _ in 0..MAX_VOXEL_POINTS {
+            v.add_colour([255, 255, 255]);
+        }
+        let full = 255 * MAX_VOXEL_POINTS as u32;
+        assert_eq!(v.colour_sums(), [full; 3]);
+        assert!(full < 1 << COLOUR_SUM_BITS);
+        // Mixed colours: each channel stays in its own field.
+        let mut v = Voxel::zeroed();
+        let (mut r, mut g, mut b) = (0u32, 0u32, 0u32);
+        for k in 0..5000u32 {
+            let c = [(k * 7 % 256) as u8, (k * 13 % 256) as u8, (k * 29 % 256) as u8];
+            v.add_colour(c);
+            (r, g, b) = (r + c[0] as u32, g + c[1] as u32, b + c[2] as u32);
+        }
+        assert_eq!(v.colour_sums(), [r, g, b]);
+        v.count = 5000;
+        let mean = v.colour();
+        assert!((mean[1] - g as f32 / (255.0 * 5000.0)).abs() < 1e-6);
     }
 }
