@@ -88,10 +88,13 @@ firmware:
 		arm-none-eabi-size -A $(FW_ELF) | awk -v reserve=$$reserve '$$1 == ".data" || $$1 == ".bss" { ram += $$2 } \
 		END { printf "RAM: .data + .bss %d bytes + %d stack reserve = %d of 524288 bytes (%.1f %%)\n", ram, reserve, ram + reserve, (ram + reserve) / 5242.88 }'
 	$(QEMU) -kernel $(FW_ELF) | tee target/fw-run.defmt | $(FW_DECODE) $(FW_ELF) | tee target/fw-run.txt
-	grep '^frame [0-9]* map' target/fw-run.txt | diff -u $(FW_FRAMES)/expected.txt -
+	grep -E '^frame [0-9]+ (map|world delta) ' target/fw-run.txt | diff -u $(FW_FRAMES)/expected.txt -
+	@reserve=$$((16#$$(arm-none-eabi-nm $(FW_ELF) | awk '$$3 == "_stack_reserve" { print $$1 }'))); \
+		hw=$$(sed -n 's/^stack high-water \([0-9]*\) bytes.*/\1/p' target/fw-run.txt); \
+		[ -n "$$hw" ] && [ "$$hw" -le "$$reserve" ] || { echo "firmware: FAILED: stack high-water $$hw bytes > the $$reserve-byte reserve"; exit 1; }
 	@grep -qx 'heap allocations during process: 0' target/fw-run.txt || \
 		{ echo "firmware: FAILED: the core allocated on the heap during process (or the count is missing)"; exit 1; }
-	@echo "firmware: the Cortex-M7 maps equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"
+	@echo "firmware: the Cortex-M7 maps and world deltas equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"
 
 ## `make firmware` when QEMU and the shared frames are here; under CI their absence is an error.
 firmware-check:

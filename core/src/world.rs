@@ -239,8 +239,9 @@ impl<const P: usize, const O: usize, const G: usize, const R: usize> WorldStorag
     pub const REMOVALS: usize = R;
 }
 
-/// World map for the `mcu` profile: 4 planes, 16 objects, 256 Gaussians.
-pub type McuWorld = WorldStorage<4, 16, 256, 64>;
+/// World map for the `mcu` profile: 1 plane, 8 objects, 24 Gaussians (10 KiB: what the 512 KiB budget leaves
+/// beside the mapper and a 25 KiB stack; the firmware runs it on the cabinet frames).
+pub type McuWorld = WorldStorage<1, 8, 24, 16>;
 /// World map for the `host` profile: 32 planes, 128 objects, 4 096 Gaussians.
 pub type HostWorld = WorldStorage<32, 128, 4096, 1024>;
 

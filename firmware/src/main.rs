@@ -28,6 +28,7 @@ use cortex_m_semihosting::debug;
 use defmt_semihosting as _;
 use embedded_alloc::LlffHeap;
 use m2smap_core::wire::{self, WireError};
+use m2smap_core::world::{McuWorld, WorldMap};
 use m2smap_core::{
     Frame, FrameError, FrameReport, Instance, Intrinsics, Mapper, MaskPixels, MaskSet, McuStorage, Params, Pose,
 };
@@ -52,6 +53,8 @@ mod frames {
 
 /// All pools of the mcu profile; zeroed bytes are a valid empty storage (`bytemuck::Zeroable`), so it lives in .bss.
 static mut STORAGE: MaybeUninit<McuStorage> = MaybeUninit::zeroed();
+/// The world map's pools (`McuWorld`), zeroed = empty, in `.bss` beside the mapper's.
+static mut WORLD: MaybeUninit<McuWorld> = MaybeUninit::zeroed();
 
 /// Heap bytes. The core is `no_std` without `alloc`; this heap makes that observable: anything linked into the
 /// image that allocates (the core, a dependency, a future change) goes through the counting allocator below and
@@ -294,6 +297,9 @@ fn main() -> ! {
             exit_failure()
         }
     };
+    // SAFETY: `main` runs once and is the only user of WORLD; all-zero bytes are a valid McuWorld.
+    let world_storage: &'static mut McuWorld = unsafe { (*addr_of_mut!(WORLD)).assume_init_mut() };
+    let mut world = WorldMap::new(world_storage);
     let mut scratch = [0u8; wire::MAX_PRIMITIVE_BYTES];
     let mut allocations_in_process = 0usize;
     for (i, f) in frames::FRAMES.iter().enumerate() {
@@ -346,6 +352,37 @@ fn main() -> ! {
         t[7] = ticks();
         allocations_in_process += ALLOCATOR.allocations() - allocs_before;
         log_frame(i, per_tick, &t, encoded, last4, &report);
+        // The world map: this frame fused in, and the delta a radio link would carry (its trailer is its CRC).
+        let Some(pose) = f.pose else { fail("a frame without a pose: the world map needs one") };
+        let allocs_before = ALLOCATOR.allocations();
+        let t0 = ticks();
+        if let Err(e) = world.integrate(i as u32, &pose, mapper.params(), |sink| mapper.for_each_primitive(sink)) {
+            defmt::error!("frame {} world map: {}", i, defmt::Debug2Format(&e));
+            exit_failure()
+        }
+        let mut last4 = [0u8; 4];
+        let mut delta_scratch = [0u8; 32];
+        let delta = world.encode_delta_streaming(&mut delta_scratch, |bytes: &[u8]| -> Result<(), WireError> {
+            if bytes.len() == 4 {
+                last4.copy_from_slice(bytes);
+            }
+            Ok(())
+        });
+        let instructions = ((ticks() - t0) as f64 * per_tick) as u64;
+        allocations_in_process += ALLOCATOR.allocations() - allocs_before;
+        match delta {
+            Ok(n) => defmt::println!(
+                "frame {=usize} world delta {=usize} bytes crc {=u32:08x}",
+                i,
+                n,
+                u32::from_le_bytes(last4)
+            ),
+            Err(e) => {
+                defmt::error!("frame {} world delta: {}", i, defmt::Debug2Format(&e));
+                exit_failure()
+            }
+        }
+        defmt::println!("frame {=usize} world instructions {=u64}", i, instructions);
     }
     defmt::println!("heap allocations during process: {=usize}", allocations_in_process);
     defmt::println!(

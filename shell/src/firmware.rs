@@ -88,13 +88,16 @@ pub fn load_frames(dataset: &Dataset, n: usize) -> Result<Vec<FirmwareFrame>> {
 }
 
 /// The CRC-32 and length of every frame's encoded map, from the host pipeline with the `mcu` profile.
-pub fn host_digests(dataset: &Dataset, frames: &[FirmwareFrame]) -> Result<Vec<(u32, usize)>> {
+pub fn host_digests(dataset: &Dataset, frames: &[FirmwareFrame]) -> Result<Vec<FrameDigest>> {
     let mut storage = bytemuck::zeroed_box::<McuStorage>();
     let mut mapper = Mapper::new(&mut *storage, Params::default()).map_err(|e| anyhow!("parameters: {e}"))?;
+    let mut world_storage = bytemuck::zeroed_box::<m2smap_core::world::McuWorld>();
+    let mut world = m2smap_core::world::WorldMap::new(&mut world_storage);
     let mut buf = vec![0u8; FIRMWARE_MAP_BYTES];
     frames
         .iter()
-        .map(|f| {
+        .enumerate()
+        .map(|(i, f)| {
             let frame = Frame {
                 width: f.size.0,
                 height: f.size.1,
@@ -106,10 +109,30 @@ pub fn host_digests(dataset: &Dataset, frames: &[FirmwareFrame]) -> Result<Vec<(
             };
             mapper.process(frame, Some(f.masks())).map_err(|e| anyhow!("{e}"))?;
             let n = mapper.encode_map(&mut buf).map_err(|e| anyhow!("{e}"))?;
-            // The map ends with the CRC-32 of everything before it: that is the digest.
-            Ok((m2smap_core::wire::crc32(&buf[..n.saturating_sub(4)]), n))
+            // A map or delta ends with the CRC-32 of everything before it: that is the digest.
+            let map_crc = m2smap_core::wire::crc32(&buf[..n.saturating_sub(4)]);
+            let pose = f.pose.ok_or_else(|| anyhow!("frame {i} has no pose: the firmware's world map needs one"))?;
+            world
+                .integrate(i as u32, &pose, mapper.params(), |sink| mapper.for_each_primitive(sink))
+                .map_err(|e| anyhow!("frame {i}: world map: {e}"))?;
+            let d = world.encode_delta(&mut buf).map_err(|e| anyhow!("frame {i}: world delta: {e}"))?;
+            let delta_crc = m2smap_core::wire::crc32(&buf[..d.saturating_sub(4)]);
+            Ok(FrameDigest { map_crc, map_bytes: n, delta_crc, delta_bytes: d })
         })
         .collect()
+}
+
+/// What the host expects of one firmware frame: its map's and its world delta's size and CRC-32.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameDigest {
+    /// CRC-32 of the frame map (its trailer).
+    pub map_crc: u32,
+    /// Bytes of the frame map.
+    pub map_bytes: usize,
+    /// CRC-32 of the world-map delta after this frame (the `mcu` world profile).
+    pub delta_crc: u32,
+    /// Bytes of that delta.
+    pub delta_bytes: usize,
 }
 
 /// The firmware's map buffer, bytes (also the size the host uses, so an oversized map fails on both).
@@ -190,8 +213,9 @@ pub fn export(dataset: &Dataset, n: usize, out: &Path) -> Result<()> {
     writeln!(src, "];")?;
     write("frames.rs", src.as_bytes())?;
     let mut expected = String::new();
-    for (i, (crc, len)) in host_digests(dataset, &frames)?.into_iter().enumerate() {
-        writeln!(expected, "frame {i} map {len} bytes crc {crc:08x}")?;
+    for (i, d) in host_digests(dataset, &frames)?.into_iter().enumerate() {
+        writeln!(expected, "frame {i} map {} bytes crc {:08x}", d.map_bytes, d.map_crc)?;
+        writeln!(expected, "frame {i} world delta {} bytes crc {:08x}", d.delta_bytes, d.delta_crc)?;
     }
     write("expected.txt", expected.as_bytes())?;
     Ok(())
