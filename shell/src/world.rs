@@ -117,7 +117,7 @@ pub struct WorldFrameRecord {
     pub delta_record_bytes: [usize; 3],
     /// Removals the delta carries.
     pub delta_removals: usize,
-    /// What the integration did.
+    /// Frame planes merged into world planes.
     pub merged_planes: u32,
     /// World planes created.
     pub created_planes: u32,
@@ -171,7 +171,7 @@ pub struct WorldSummary {
     pub world_samples: usize,
     /// Whether replaying `deltas.bin` gave `world.bin` byte for byte.
     pub receiver_identical: bool,
-    /// Sum over frames of the integration counts.
+    /// World Gaussians evicted to make room, over the run.
     pub gmms_evicted: u32,
     /// Frame Gaussians dropped for lack of room, over the run.
     pub gmms_dropped: u32,
