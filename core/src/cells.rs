@@ -13,6 +13,21 @@
 //! instead of 180 as run lengths and 430 as a bitmap. Bits are written from the most significant bit of each
 //! byte; the last byte is padded with zeros.
 
+/// Whether cell `k` of a bitmap (bit `k % 8` of byte `k / 8`, [`crate::map::CellCoding::Bitmap`]) is set; false
+/// beyond its end.
+#[inline]
+pub fn bit(bits: &[u8], k: usize) -> bool {
+    bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1)
+}
+
+/// Sets cell `k` of a bitmap (nothing beyond its end).
+#[inline]
+pub fn set_bit(bits: &mut [u8], k: usize) {
+    if let Some(b) = bits.get_mut(k / 8) {
+        *b |= 1 << (k % 8);
+    }
+}
+
 /// The run lengths of [`crate::map::CellCoding::Runs`] bytes, in order; it stops at the end or at a malformed
 /// varint (more than three bytes), which [`crate::wire::decode`] refuses before a map is handed out.
 #[derive(Debug, Clone)]
@@ -67,12 +82,12 @@ pub fn push_run(out: &mut [u8], len: &mut usize, mut n: u32) -> bool {
 pub fn run_lengths(bits: &[u8], cells: usize, out: &mut [u8]) -> Option<usize> {
     let (mut len, mut run, mut set) = (0usize, 0u32, false);
     for k in 0..cells {
-        let bit = bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1);
-        if bit != set {
+        let is_set = bit(bits, k);
+        if is_set != set {
             if !push_run(out, &mut len, run) {
                 return None;
             }
-            (run, set) = (0, bit);
+            (run, set) = (0, is_set);
         }
         run += 1;
     }
@@ -152,7 +167,7 @@ fn row_edges(bits: &[u8], width: usize, j: usize, out: &mut [u8; MAX_EDGES]) -> 
     let mut inside = false;
     for i in 0..=width {
         let k = j * width + i;
-        let set = i < width && bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1);
+        let set = i < width && bit(bits, k);
         if set != inside {
             if let Some(slot) = out.get_mut(n) {
                 *slot = i as u8;

@@ -44,7 +44,7 @@ impl CellBits<'_> {
         match self.coding {
             CellCoding::Bitmap => {
                 for k in 0..cells {
-                    if self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1) {
+                    if crate::cells::bit(self.bits, k) {
                         f(k % w, k / w);
                     }
                 }
@@ -74,7 +74,7 @@ impl CellBits<'_> {
         }
         let k = j * self.width as usize + i;
         match self.coding {
-            CellCoding::Bitmap => self.bits.get(k / 8).is_some_and(|b| (b >> (k % 8)) & 1 == 1),
+            CellCoding::Bitmap => crate::cells::bit(self.bits, k),
             CellCoding::Edges => {
                 let mut hit = false;
                 crate::cells::for_each_edge_cell(self.bits, self.width as usize, j + 1, |a, b| hit |= a == i && b == j);

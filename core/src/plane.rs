@@ -159,7 +159,7 @@ impl Plane {
     /// Whether cell (a, b) (grid coordinates) is occupied.
     pub fn is_occupied(&self, a: usize, b: usize) -> bool {
         let i = b * PLANE_GRID + a;
-        a < PLANE_GRID && self.cells.get(i / 8).is_some_and(|byte| (byte >> (i % 8)) & 1 == 1)
+        a < PLANE_GRID && crate::cells::bit(&self.cells, i)
     }
 
     /// Whether (a, b) (grid coordinates) lies within the bounding box of the occupied cells grown by `reach`

@@ -213,7 +213,7 @@ pub fn encode_streaming(
     frame: u32,
     mut primitives: impl FnMut(&mut dyn FnMut(&Primitive<'_>)),
     scratch: &mut [u8],
-    mut out: impl FnMut(&[u8]) -> Result<(), WireError>,
+    out: impl FnMut(&[u8]) -> Result<(), WireError>,
 ) -> Result<usize, WireError> {
     let (mut planes, mut sqs, mut gmms) = (0usize, 0usize, 0usize);
     primitives(&mut |p| match p {
@@ -224,15 +224,8 @@ pub fn encode_streaming(
     let count = |n: usize| u16::try_from(n).map_err(|_| WireError::TooManyPrimitives);
     let header =
         Header { magic: MAGIC, version: VERSION, frame, planes: count(planes)?, sqs: count(sqs)?, gmms: count(gmms)? };
-    let mut crc = 0xFFFF_FFFFu32;
-    let mut total = 0usize;
-    let mut emit = |bytes: &[u8], crc: &mut u32| -> Result<(), WireError> {
-        *crc = crc32_update(*crc, bytes);
-        total += bytes.len();
-        out(bytes)
-    };
-    let head = postcard::to_slice(&header, scratch).map_err(|_| WireError::BufferTooSmall)?;
-    emit(head, &mut crc)?;
+    let mut emitter = Emitter::new(out);
+    emitter.emit(postcard::to_slice(&header, scratch).map_err(|_| WireError::BufferTooSmall)?)?;
     // Written in kind order: planes, then superquadrics, then Gaussians.
     for kind in 0..3 {
         let mut result = Ok(());
@@ -246,12 +239,11 @@ pub fn encode_streaming(
                 (2, Primitive::Gmm(g)) => write_gmm(g, scratch),
                 _ => Ok(0),
             };
-            result = written.and_then(|n| emit(scratch.get(..n).unwrap_or(&[]), &mut crc));
+            result = written.and_then(|n| emitter.emit(scratch.get(..n).unwrap_or(&[])));
         });
         result?;
     }
-    emit(&(!crc).to_le_bytes(), &mut crc)?;
-    Ok(total)
+    emitter.finish()
 }
 
 /// Writes a plane whose occupied box holds at most `BITS × 8` cells (a frame plane: [`MAX_PLANE_BITS`]; a
@@ -269,10 +261,7 @@ fn write_plane<const BITS: usize>(p: &MapPlane<'_>, out: &mut [u8]) -> Result<us
             }
             p.cells.for_each_set(|i, j| {
                 if (i0..=i1).contains(&i) && (j0..=j1).contains(&j) {
-                    let k = (j - j0) * w + (i - i0);
-                    if let Some(b) = bits.get_mut(k / 8) {
-                        *b |= 1 << (k % 8);
-                    }
+                    crate::cells::set_bit(&mut bits, (j - j0) * w + (i - i0));
                 }
             });
             (p.cells.a0 + i0 as i16, p.cells.b0 + j0 as i16, w as u16, h as u16)

@@ -44,6 +44,7 @@
 
 use bytemuck::Zeroable;
 
+use crate::cells::{bit, set_bit};
 use crate::frame::Pose;
 use crate::linalg::{self, Moments, Sym3, Vec3};
 use crate::map::{CellBits, CellCoding, MapGmm, MapPlane, MapSq, Primitive};
@@ -530,7 +531,6 @@ impl<'s> WorldMap<'s> {
                 f(inside.then(|| b as usize * WORLD_GRID + a as usize));
             })
         };
-        let is_set = |cells: &[u8], k: usize| cells.get(k / 8).is_some_and(|byte| (byte >> (k % 8)) & 1 == 1);
         // New cells join the pending list (once each); a full list shows everything at once.
         let (mut clipped, mut overflow, mut reach) = (0u32, false, w.reach);
         for_each_cell(&mut |k| {
@@ -539,7 +539,7 @@ impl<'s> WorldMap<'s> {
                 return;
             };
             let n = w.pending_len as usize;
-            if is_set(&w.cells, k) || w.pending.get(..n).unwrap_or(&[]).contains(&(k as u16)) {
+            if bit(&w.cells, k) || w.pending.get(..n).unwrap_or(&[]).contains(&(k as u16)) {
                 return;
             }
             let (a, b) = ((k % WORLD_GRID) as f32 + 0.5 - half as f32, (k / WORLD_GRID) as f32 + 0.5 - half as f32);
@@ -569,13 +569,13 @@ impl<'s> WorldMap<'s> {
             w.eigen_ratio = w.acc_ratio;
             w.colour = w.acc_colour.map(|x| libm::roundf(x.clamp(0.0, 255.0)) as u8);
             for &k in w.pending.get(..w.pending_len as usize).unwrap_or(&[]) {
-                set_cell(&mut w.cells, k as usize);
+                set_bit(&mut w.cells, k as usize);
             }
             w.pending_len = 0;
             if overflow {
                 for_each_cell(&mut |k| {
                     if let Some(k) = k {
-                        set_cell(&mut w.cells, k);
+                        set_bit(&mut w.cells, k);
                     }
                 });
             }
@@ -787,7 +787,7 @@ impl<'s> WorldMap<'s> {
                         return false;
                     }
                     let k = b as usize * WORLD_GRID + a as usize;
-                    p.cells.get(k / 8).is_some_and(|byte| (byte >> (k % 8)) & 1 == 1) || pending.contains(&(k as u16))
+                    bit(&p.cells, k) || pending.contains(&(k as u16))
                 })
             })
         })
@@ -994,7 +994,7 @@ fn fill_holes(cells: &mut [u8; WORLD_GRID_BYTES]) {
     let before = *cells;
     let is_set = |a: usize, b: usize| {
         let k = b * WORLD_GRID + a;
-        before.get(k / 8).is_some_and(|byte| (byte >> (k % 8)) & 1 == 1)
+        bit(&before, k)
     };
     for b in 1..WORLD_GRID - 1 {
         for a in 1..WORLD_GRID - 1 {
@@ -1003,16 +1003,9 @@ fn fill_holes(cells: &mut [u8; WORLD_GRID_BYTES]) {
             }
             let n = [(a - 1, b), (a + 1, b), (a, b - 1), (a, b + 1)].iter().filter(|&&(x, y)| is_set(x, y)).count();
             if n >= 3 {
-                set_cell(cells, b * WORLD_GRID + a);
+                set_bit(cells, b * WORLD_GRID + a);
             }
         }
-    }
-}
-
-/// Sets cell `k` of a world plane's bitmap.
-fn set_cell(cells: &mut [u8], k: usize) {
-    if let Some(byte) = cells.get_mut(k / 8) {
-        *byte |= 1 << (k % 8);
     }
 }
 
