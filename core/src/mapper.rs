@@ -14,7 +14,7 @@ use crate::objects::{self, Object, SQ_ACCEPTED, SQ_NONE, SQ_REJECTED};
 use crate::params::Params;
 use crate::plane::PLANE_GRID;
 use crate::plane::{self, Plane};
-use crate::points::Point;
+use crate::points::{PixelWindow, Point};
 use crate::pool::{Bounded, PoolId, PoolUsage};
 use crate::profile::Profile;
 use crate::segment;
@@ -528,14 +528,20 @@ impl<'s> Mapper<'s> {
                 }
                 *c += 1;
             };
-            // The point pass only samples for eligible objects: skipped when there are none.
+            // The point pass samples for eligible objects only, over the pixels their points came from (each
+            // object's pixel box holds all of its points): skipped when there are none.
+            let window = (first..last)
+                .filter(|&k| eligible(k))
+                .filter_map(|k| objects.get(k))
+                .fold(PixelWindow::EMPTY, |w, o| w.union(PixelWindow::from_box(o.pixel_bbox)));
             if (first..last).any(eligible) {
-                supervoxel::for_each_voxel_point(
+                supervoxel::for_each_voxel_point_in(
                     &checked.frame,
                     &params,
                     voxel_masks.as_ref(),
                     self.voxels.as_slice(),
                     self.slots,
+                    window,
                     sample,
                 );
             }

@@ -96,13 +96,57 @@ impl Sampler {
 }
 
 /// Calls `f` for every sampled, in-range point of `frame`, in pixel order. The frame must have been validated.
-pub fn for_each_point(frame: &Frame<'_>, params: &Params, mut f: impl FnMut(&Point)) {
+pub fn for_each_point(frame: &Frame<'_>, params: &Params, f: impl FnMut(&Point)) {
+    for_each_point_in(frame, params, PixelWindow::WHOLE, f);
+}
+
+/// An inclusive rectangle of pixels: columns `u0..=u1`, rows `v0..=v1` (clipped to the image when used).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PixelWindow {
+    /// First column, pixels.
+    pub u0: u16,
+    /// First row, pixels.
+    pub v0: u16,
+    /// Last column, pixels.
+    pub u1: u16,
+    /// Last row, pixels.
+    pub v1: u16,
+}
+
+impl PixelWindow {
+    /// Every pixel of any image.
+    pub const WHOLE: PixelWindow = PixelWindow { u0: 0, v0: 0, u1: u16::MAX, v1: u16::MAX };
+    /// No pixel.
+    pub const EMPTY: PixelWindow = PixelWindow { u0: u16::MAX, v0: u16::MAX, u1: 0, v1: 0 };
+
+    /// The window of a `[u_min, v_min, u_max, v_max]` box (as kept by Gaussians and objects).
+    pub fn from_box(b: [u16; 4]) -> Self {
+        let [u0, v0, u1, v1] = b;
+        PixelWindow { u0, v0, u1, v1 }
+    }
+
+    /// The smallest window holding both.
+    pub fn union(self, o: PixelWindow) -> Self {
+        PixelWindow { u0: self.u0.min(o.u0), v0: self.v0.min(o.v0), u1: self.u1.max(o.u1), v1: self.v1.max(o.v1) }
+    }
+}
+
+/// [`for_each_point`] restricted to the pixels of `window`: exactly the points of the whole-image pass that fall
+/// inside it, in the same order (the sample is keyed by pixel index).
+pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow, mut f: impl FnMut(&Point)) {
     let sampled = Sampler::with(params.sample_seed, sample_threshold(params.sample_rate));
     let (lo, hi) = frame.raw_range(params);
     let w = frame.width as usize;
+    let (u0, u1) = (window.u0 as usize, (window.u1 as usize).min(w.saturating_sub(1)));
+    if w == 0 || u0 > u1 {
+        return;
+    }
     let k = frame.intrinsics;
     let rgb_rows = frame.colour.chunks_exact(w * 3);
-    for ((v, row), rgb_row) in frame.depth.chunks_exact(w).enumerate().zip(rgb_rows) {
+    let rows = frame.depth.chunks_exact(w).zip(rgb_rows).enumerate();
+    let first_row = window.v0 as usize;
+    let n_rows = (window.v1 as usize + 1).saturating_sub(first_row);
+    for (v, (row, rgb_row)) in rows.skip(first_row).take(n_rows) {
         let mut emit = |u: usize| {
             let (Some(&raw), Some(rgb)) = (row.get(u), rgb_row.get(3 * u..3 * u + 3)) else { return };
             let z = frame.metres(raw);
@@ -118,17 +162,18 @@ pub fn for_each_point(frame: &Frame<'_>, params: &Params, mut f: impl FnMut(&Poi
             };
             f(&point);
         };
+        let span = row.get(u0..=u1).unwrap_or(&[]);
         if !BLOCKWISE {
-            let base = (v * w) as u32;
-            for (u, &raw) in row.iter().enumerate() {
-                if raw >= lo && raw <= hi && sampled.keeps(base + u as u32) {
-                    emit(u);
+            let base = (v * w + u0) as u32;
+            for (j, &raw) in span.iter().enumerate() {
+                if raw >= lo && raw <= hi && sampled.keeps(base + j as u32) {
+                    emit(u0 + j);
                 }
             }
             continue;
         }
-        for (b, block) in row.chunks(BLOCK).enumerate() {
-            let first = b * BLOCK;
+        for (b, block) in span.chunks(BLOCK).enumerate() {
+            let first = u0 + b * BLOCK;
             let base = (v * w + first) as u32;
             let mut mask = 0u32;
             for ((&raw, &bit), j) in block.iter().zip(&BLOCK_BITS).zip(0u32..) {

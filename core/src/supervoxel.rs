@@ -292,11 +292,25 @@ pub fn for_each_voxel_point(
     masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
+    f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
+) {
+    for_each_voxel_point_in(frame, params, masks, voxels, slots, points::PixelWindow::WHOLE, f);
+}
+
+/// [`for_each_voxel_point`] over the pixels of `window` only (the same points in the same order as the
+/// whole-image pass gives there).
+pub fn for_each_voxel_point_in(
+    frame: &Frame<'_>,
+    params: &Params,
+    masks: Option<&MaskSet<'_>>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    window: points::PixelWindow,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     let r = params.voxel_resolution;
     let mut slot_cache = SlotCache::default();
-    points::for_each_point(frame, params, |p| {
+    points::for_each_point_in(frame, params, window, |p| {
         f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
     });
 }
