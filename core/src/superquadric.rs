@@ -96,8 +96,8 @@ fn term(x: f32, a: f32, eps: f32) -> f32 {
 
 /// The powers of F at one point: the terms (x/a1)^(2/ε2), (y/a2)^(2/ε2), (z/a3)^(2/ε1), the xy power
 /// S^(ε2/ε1) of S = the first two terms' sum, and G = F^(ε1/2) = √H with F = S^(ε2/ε1) + the third term; with
-/// the base-2 logarithms of the three terms' bases, of S and of F (the shape gradient and the perturbed models
-/// of the Jacobian reuse them instead of taking them again).
+/// the base-2 logarithms of the three terms' bases, of S and of F (the analytic shape derivatives reuse them
+/// instead of taking them again).
 #[derive(Debug, Clone, Copy, Default)]
 struct Powers {
     t: Vec3,
@@ -864,7 +864,8 @@ const FINISH_ITERS: u32 = 8;
 /// Most fit points the screening iterations see (evenly strided over the fit points).
 const SCREEN_POINTS: usize = 50;
 
-/// Forward-difference steps per parameter (metres for scales and centre, radians for rotation).
+/// Steps of the perturbed models per parameter (metres for scales and centre, radians for rotation): the shape
+/// columns of a support row are forward differences of the support function (`Superquadric::lowest_along`).
 const STEPS: Theta = [1e-3, 1e-3, 1e-3, 2e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3];
 
 /// The state of one LM run.
