@@ -68,6 +68,9 @@ struct Grid<'f> {
     depth: &'f [u16],
     /// Each cell's unit normal × 32767 as three i16 bit patterns (all 0 = none), once computed.
     normals: &'f [u16],
+    /// Each cell's point (three f32 as six u16 halves, low half first), once computed: [`Grid::point_at`]
+    /// reads it instead of back-projecting the cell again (each cell's point is wanted about eight times).
+    points: &'f [u16],
 }
 
 impl<'f> Grid<'f> {
@@ -147,7 +150,15 @@ impl<'f> Grid<'f> {
         if cx >= self.cols || cy >= self.rows {
             return None;
         }
-        let raw = self.depth.get(cy * self.cols + cx).copied().unwrap_or(0);
+        let i = cy * self.cols + cx;
+        let raw = self.depth.get(i).copied().unwrap_or(0);
+        if raw == 0 {
+            return None;
+        }
+        if let Some(&[x0, x1, y0, y1, z0, z1]) = self.points.get(6 * i..6 * i + 6) {
+            let f = |lo: u16, hi: u16| f32::from_bits(lo as u32 | (hi as u32) << 16);
+            return Some([f(x0, x1), f(y0, y1), f(z0, z1)]);
+        }
         let (u, v) =
             ((cx * self.step) as f32 + 0.5 * self.step as f32, (cy * self.step) as f32 + 0.5 * self.step as f32);
         (raw > 0).then(|| self.frame.intrinsics.unproject(u - 0.5, v - 0.5, self.frame.metres(raw)))
@@ -231,12 +242,13 @@ pub fn segment(
     // jump separates them and their boundary is locally convex or nearly flat (LCCP).
     // `ids` holds the parents (n), the cells' depths (n), their quantised normals (3n) and mean colours (2n)
     // until the masks.
-    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 7));
+    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 13));
     let n = layout.1 * layout.2;
     let (parents, rest) = ids.split_at_mut(n.min(ids.len()));
     let (depth, rest) = rest.split_at_mut(n.min(rest.len()));
     let (normals, rest) = rest.split_at_mut((3 * n).min(rest.len()));
-    let colours = rest.get_mut(..2 * n).unwrap_or(&mut []);
+    let (colours, rest) = rest.split_at_mut((2 * n).min(rest.len()));
+    let points = rest.get_mut(..6 * n).unwrap_or(&mut []);
     Grid::fill(frame, params, layout, depth, colours);
     let colours = &*colours;
     let colour_of = |i: usize| -> [i32; 3] {
@@ -245,7 +257,16 @@ pub fn segment(
             _ => [0; 3],
         }
     };
-    let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth, normals: &[] };
+    let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth, normals: &[], points: &[] };
+    for (i, q) in points.chunks_exact_mut(6).enumerate() {
+        let p = grid.point(i).unwrap_or([0.0; 3]);
+        for (pair, x) in q.chunks_exact_mut(2).zip(p) {
+            if let [lo, hi] = pair {
+                (*lo, *hi) = (x.to_bits() as u16, (x.to_bits() >> 16) as u16);
+            }
+        }
+    }
+    let grid = Grid { points, ..grid };
     for (i, q) in normals.chunks_exact_mut(3).enumerate() {
         let normal = grid.surfel(i % grid.cols.max(1), i / grid.cols.max(1)).map_or([0.0; 3], |(_, nrm)| nrm);
         for (x, c) in q.iter_mut().zip(normal) {
