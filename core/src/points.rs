@@ -210,4 +210,59 @@ mod tests {
             assert!((0..100_000u32).chain([u32::MAX]).all(|i| is_sampled(i, 7, t) == by_u64(i)), "rate {rate}");
         }
     }
+
+    /// A window's pass gives exactly the whole-image pass's points that fall inside it, in the same order, for
+    /// windows inside the image, on its edges, reaching past it and empty; the whole window is the whole pass.
+    #[test]
+    fn windowed_pass_is_the_whole_pass_cut_to_the_window() {
+        const W: usize = 70;
+        const H: usize = 23;
+        let mut depth = [0u16; W * H];
+        for (i, d) in depth.iter_mut().enumerate() {
+            // Depths 0.5–2.9 m with holes and out-of-range values in between.
+            *d = match i % 11 {
+                3 => 0,
+                7 => 9000,
+                k => 500 + (i as u16 % 97) * 20 + k as u16,
+            };
+        }
+        let colour = [7u8; W * H * 3];
+        let frame = Frame {
+            width: W as u16,
+            height: H as u16,
+            depth: &depth,
+            depth_scale: 1000.0,
+            colour: &colour,
+            intrinsics: crate::frame::Intrinsics { fx: 60.0, fy: 60.0, cx: 35.0, cy: 11.0 },
+            pose: None,
+        };
+        let params = Params { sample_rate: 0.4, ..Params::default() };
+        let mut all = [(0u16, 0u16); W * H];
+        let mut n_all = 0;
+        for_each_point(&frame, &params, |p| {
+            if let Some(slot) = all.get_mut(n_all) {
+                *slot = (p.u, p.v);
+                n_all += 1;
+            }
+        });
+        assert!(n_all > 200 && n_all < W * H / 2, "{n_all} points");
+        let windows = [
+            PixelWindow { u0: 5, v0: 2, u1: 40, v1: 17 },
+            PixelWindow { u0: 0, v0: 0, u1: 69, v1: 0 },
+            PixelWindow { u0: 33, v0: 20, u1: 500, v1: 900 },
+            PixelWindow { u0: 64, v0: 3, u1: 69, v1: 22 },
+            PixelWindow::EMPTY,
+            PixelWindow::WHOLE,
+        ];
+        for window in windows {
+            let inside = |&&(u, v): &&(u16, u16)| u >= window.u0 && u <= window.u1 && v >= window.v0 && v <= window.v1;
+            let mut expected = all.iter().take(n_all).filter(inside);
+            let mut n = 0;
+            for_each_point_in(&frame, &params, window, |p| {
+                assert_eq!(expected.next(), Some(&(p.u, p.v)), "{window:?}");
+                n += 1;
+            });
+            assert_eq!(expected.next(), None, "{window:?}: the window's pass stopped early after {n} points");
+        }
+    }
 }
