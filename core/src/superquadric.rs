@@ -792,23 +792,29 @@ fn percentile(values: &mut [f32], q: f32) -> f32 {
     values.get(i.min(n - 1)).copied().unwrap_or(0.0)
 }
 
-/// Initial parameters in frame `r0` (columns = local axes) from the 5th/95th percentiles of the points.
-fn initial(points: &[Vec3], mean: Vec3, r0: &Mat3, eps: [f32; 2], deepen: bool) -> Theta {
-    let mut theta = [0.0; SQ_PARAMS];
+/// The half-extent (at least [`MIN_SCALE`]) and the middle of `points` along the unit direction `dir` about
+/// `mean`, from their 5th and 95th percentiles, metres.
+fn percentile_extent(points: &[Vec3], mean: Vec3, dir: Vec3) -> (f32, f32) {
     let mut buf = [0.0f32; MAX_SAMPLES];
     let n = points.len().min(MAX_SAMPLES);
+    for (b, &p) in buf.iter_mut().zip(points.iter().take(n)) {
+        *b = linalg::dot(linalg::sub(p, mean), dir);
+    }
+    let slice = buf.get_mut(..n).unwrap_or(&mut []);
+    let lo = percentile(slice, 0.05);
+    let hi = percentile(slice, 0.95);
+    ((0.5 * (hi - lo)).max(MIN_SCALE), 0.5 * (hi + lo))
+}
+
+/// Initial parameters in frame `r0` (columns = local axes) whose column k has the [`percentile_extent`]
+/// `extents[k]` of the points (half-extent, middle).
+fn initial(extents: [(f32, f32); 3], mean: Vec3, r0: &Mat3, eps: [f32; 2], deepen: bool) -> Theta {
+    let mut theta = [0.0; SQ_PARAMS];
     let mut centre_local = [0.0f32; 3];
-    for axis in 0..3 {
-        let dir = linalg::column(r0, axis);
-        for (b, &p) in buf.iter_mut().zip(points.iter().take(n)) {
-            *b = linalg::dot(linalg::sub(p, mean), dir);
-        }
-        let slice = buf.get_mut(..n).unwrap_or(&mut []);
-        let lo = percentile(slice, 0.05);
-        let hi = percentile(slice, 0.95);
+    for (axis, (half, middle)) in extents.into_iter().enumerate() {
         if let (Some(t), Some(c)) = (theta.get_mut(axis), centre_local.get_mut(axis)) {
-            *t = (0.5 * (hi - lo)).max(MIN_SCALE);
-            *c = 0.5 * (hi + lo);
+            *t = half;
+            *c = middle;
         }
     }
     theta[3] = eps[0];
@@ -1204,6 +1210,9 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
     let (e0, e1, e2) = (linalg::column(pca, 0), linalg::column(pca, 1), linalg::column(pca, 2));
     let frames = [linalg::from_columns(e0, e1, e2), linalg::from_columns(e1, e2, e0), linalg::from_columns(e2, e0, e1)];
+    // The frames are cyclic permutations of the PCA axes: each axis's percentile extent is taken once.
+    let [x0, x1, x2] = [e0, e1, e2].map(|dir| percentile_extent(points, mean, dir));
+    let extents = [[x0, x1, x2], [x1, x2, x0], [x2, x0, x1]];
     // Successive halving over the 18 guesses (3 frames × 3 ε × plain/deepened), rung by rung
     // ([`SCREEN_RUNGS`]), then the best `FINISHED_CANDIDATES` are finished on all points.
     let mut runs = [Run {
@@ -1214,7 +1223,10 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
         iterations: 0,
         converged: false,
     }; 18];
-    let all = frames.iter().flat_map(|f| INITIAL_EPS.iter().flat_map(move |e| [(f, *e, false), (f, *e, true)]));
+    let all = frames
+        .iter()
+        .zip(extents)
+        .flat_map(|(f, x)| INITIAL_EPS.iter().flat_map(move |e| [(f, x, *e, false), (f, x, *e, true)]));
     // Screening sees every k-th point only (at most `SCREEN_POINTS`): the guesses are ranked, not finished.
     let mut few = [[0.0f32; 3]; SCREEN_POINTS];
     let stride = points.len().div_ceil(SCREEN_POINTS).max(1);
@@ -1224,12 +1236,12 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
         n_few += 1;
     }
     let screen = Problem { points: few.get(..n_few).unwrap_or(points), radial: true, ..prob };
-    for (run, (r0, eps, deepen)) in runs.iter_mut().zip(all) {
+    for (run, (r0, extent, eps, deepen)) in runs.iter_mut().zip(all) {
         if params.variant.ellipsoids_only() && eps != ELLIPSOID_EPS {
             continue; // MMQ fits ellipsoids only: the other shape guesses stay at infinite cost.
         }
         run.base = *r0;
-        run.theta = initial(points, mean, r0, eps, deepen);
+        run.theta = initial(extent, mean, r0, eps, deepen);
         run.cost = cost(&model(&run.theta, r0), &screen);
     }
     for (count, until) in SCREEN_RUNGS {
