@@ -242,12 +242,14 @@ pub fn segment(
     // jump separates them and their boundary is locally convex or nearly flat (LCCP).
     // `ids` holds the parents (n), the cells' depths (n), their quantised normals (3n) and mean colours (2n)
     // until the masks.
-    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 13));
+    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 7));
     let n = layout.1 * layout.2;
     let (parents, rest) = ids.split_at_mut(n.min(ids.len()));
     let (depth, rest) = rest.split_at_mut(n.min(rest.len()));
     let (normals, rest) = rest.split_at_mut((3 * n).min(rest.len()));
     let (colours, rest) = rest.split_at_mut((2 * n).min(rest.len()));
+    // The points' cache when the id image has room for it (13 u16 per cell; a grid of 4-pixel cells needs 13
+    // of the 16 pixels' ids), else every point is back-projected where it is wanted.
     let points = rest.get_mut(..6 * n).unwrap_or(&mut []);
     Grid::fill(frame, params, layout, depth, colours);
     let colours = &*colours;
