@@ -10,12 +10,12 @@
 //! choice of the SQ's z axis (cyclic permutations); in each, the 5th and 95th percentiles of the sampled points
 //! give the initial centre and half-axes, with (ε1, ε2) box-like (0.3, 0.3), cylinder-like (0.3, 1) or an
 //! ellipsoid (1, 1), each plain and deepened along the line of sight: 18 guesses (MMQ: the 6 ellipsoids, ε held
-//! at 1). **Screening** by successive halving on 50 of the fit points: every guess gets 2 LM iterations, the
-//! best 9 continue to 4 and the best 4 of those to 8; the screening residual is the exact radial distance ‖l‖(G − 1)/G with its analytic
-//! Jacobian (`Superquadric::shape_gradient`), so no extra powers are taken. **Finishing**: the best candidates
-//! in cost order, up to two, run 8 more **Levenberg–Marquardt** iterations (at most `lm_max_iters`; equation
-//! 13) on all
-//! `lm_samples` points with the first-order metric distance (G − 1)/‖∇G‖ and its exact analytic shape
+//! at 1). **Screening** by successive halving on 50 of the fit points (`SCREEN_RUNGS`): every guess gets 4 LM
+//! iterations, the best 9 continue to 8; the screening residual is the exact radial distance ‖l‖(G − 1)/G with
+//! its analytic Jacobian (`Superquadric::shape_gradient`), so no extra powers are taken. **Finishing**: the
+//! best candidates in cost order, up to two, run 8 more **Levenberg–Marquardt** iterations (at most
+//! `lm_max_iters`; equation 13) on all `lm_samples` points with the first-order metric distance
+//! (G − 1)/‖∇G‖ and its exact analytic shape
 //! Jacobian (`Superquadric::distance_shape_gradient`, no extra powers either), accumulated point by point into
 //! JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹), λ ÷ 3 on success and × 10 on failure,
 //! parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale ≥ 0.005 m) after each step; the first
