@@ -331,12 +331,14 @@ impl Superquadric {
         let p_over_s = if s > 1e-20 { p / s } else { 0.0 };
         let ln_s = if s > 1e-20 { ln(pw.log2_s) } else { 0.0 };
         let [dtx, dty, dtz] = dt;
-        let dp: [f32; 5] = core::array::from_fn(|j| {
-            let at = |v: &[f32; 5]| v.get(j).copied().unwrap_or(0.0);
-            ratio * p_over_s * (at(&dtx) + at(&dty)) + p * ln_s * at(&dratio)
-        });
-        let df: [f32; 5] =
-            core::array::from_fn(|j| dp.get(j).copied().unwrap_or(0.0) + dtz.get(j).copied().unwrap_or(0.0));
+        let mut dp = [0.0f32; 5];
+        for (((d, x), y), r) in dp.iter_mut().zip(dtx).zip(dty).zip(dratio) {
+            *d = ratio * p_over_s * (x + y) + p * ln_s * r;
+        }
+        let mut df = [0.0f32; 5];
+        for ((d, x), z) in df.iter_mut().zip(dp).zip(dtz) {
+            *d = x + z;
+        }
         let k = 0.5 * e1 * g / f;
         let mut dg = df.map(|d| k * d);
         // ε1 also in the outer exponent: ∂G/∂ε1 += G·ln F / 2.
@@ -368,21 +370,25 @@ impl Superquadric {
             return sd.dg.map(|d| r * d);
         }
         let [dtx, dty, dtz] = sd.dt;
-        core::array::from_fn(|j| {
-            let at = |v: &[f32; 5]| v.get(j).copied().unwrap_or(0.0);
-            let of_e1 = if j == 3 { 1.0 } else { 0.0 };
-            let ds = at(&dtx) + at(&dty);
-            let dkxy =
-                if s > 1e-20 { (2.0 / e1) * (at(&sd.dp) / s - p * ds / (s * s)) - of_e1 * kxy / e1 } else { 0.0 };
+        // Column j from its derivatives (∂tx, ∂ty, ∂tz, ∂P, ∂F, ∂G) and whether θ_j is ε1.
+        let column = |(dx, dy, dz, dp, df, dg): (f32, f32, f32, f32, f32, f32), of_e1: f32| {
+            let ds = dx + dy;
+            let dkxy = if s > 1e-20 { (2.0 / e1) * (dp / s - p * ds / (s * s)) - of_e1 * kxy / e1 } else { 0.0 };
             let dgrad_f = [
-                (dkxy * tx + kxy * at(&dtx)) * ix,
-                (dkxy * ty + kxy * at(&dty)) * iy,
-                ((2.0 / e1) * at(&dtz) - of_e1 * (2.0 / (e1 * e1)) * tz) * iz,
+                (dkxy * tx + kxy * dx) * ix,
+                (dkxy * ty + kxy * dy) * iy,
+                ((2.0 / e1) * dz - of_e1 * (2.0 / (e1 * e1)) * tz) * iz,
             ];
-            let dc = 0.5 * e1 * (at(&sd.dg) / f - g * at(&sd.df) / (f * f)) + of_e1 * 0.5 * g / f;
+            let dc = 0.5 * e1 * (dg / f - g * df / (f * f)) + of_e1 * 0.5 * g / f;
             let dnorm_g = dc * norm_f + c * linalg::dot(grad_f, dgrad_f) / norm_f;
-            at(&sd.dg) / norm_g - (g - 1.0) * dnorm_g / (norm_g * norm_g)
-        })
+            dg / norm_g - (g - 1.0) * dnorm_g / (norm_g * norm_g)
+        };
+        let mut out = [0.0f32; 5];
+        let parts = dtx.into_iter().zip(dty).zip(dtz).zip(sd.dp).zip(sd.df).zip(sd.dg);
+        for (j, (o, (((((dx, dy), dz), dp), df), dg))) in out.iter_mut().zip(parts).enumerate() {
+            *o = column((dx, dy, dz, dp, df, dg), if j == 3 { 1.0 } else { 0.0 });
+        }
+        out
     }
 
     /// Surface point and outward unit normal at the parametric angles η ∈ [−π/2, π/2], ω ∈ [−π, π), camera frame.
