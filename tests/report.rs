@@ -186,9 +186,14 @@ fn eval_writes_a_report_whose_numbers_are_the_runs() {
         let path = out.join(name).join("full-segmenter").join("summary.json");
         let seg: serde_json::Value = serde_json::from_str(&fs::read_to_string(path).unwrap()).unwrap();
         let row = &t5[&(name.to_string(), "geometric segmenter".to_string())];
-        for (cell, k) in
-            row.iter().zip(["mask_recall", "mask_precision", "mask_mean_iou", "r2g_rmse_m", "adhesion_map"])
-        {
+        for (cell, k) in row.iter().zip([
+            "mask_recall",
+            "mask_precision",
+            "mask_mean_iou",
+            "r2g_rmse_m",
+            "adhesion_map",
+            "mask_precision_all",
+        ]) {
             let expected = if k.ends_with("_m") { fmt_m(&seg[k]) } else { fmt(&seg[k]) };
             assert_eq!(*cell, expected, "{name} segmenter {k}");
         }

@@ -173,7 +173,9 @@ fn mask_metrics_follow_the_mask_quality() {
 fn separates_touching_objects_on_synthetic_scenes() {
     let dir = tempfile::tempdir().unwrap();
     // (scene, least recall, least precision)
-    for (scene, recall_min, precision_min) in [("clutter", 0.6, 0.9), ("kitchen", 0.9, 0.65), ("dining", 0.7, 0.7)] {
+    for (scene, recall_min, precision_min) in
+        [("clutter", 0.6, 0.9), ("kitchen", 0.9, 0.65), ("dining", 0.7, 0.7), ("desk", 0.6, 0.9)]
+    {
         let data = dir.path().join(scene);
         let o = common::m2smap(&[
             "synth",
@@ -202,4 +204,25 @@ fn separates_touching_objects_on_synthetic_scenes() {
         assert!(precision >= precision_min, "{scene}: precision {precision:.2} < {precision_min}");
         assert!(iou >= 0.85, "{scene}: mean IoU {iou:.3}");
     }
+}
+
+/// `ycbv_0000` (real, close range, ground-truth ids): the table top is a supporting plane, so the foam brick
+/// resting on it is an instance of its own, and the masks cover the objects' pixels well enough that the `full`
+/// map's primitives rarely span an object and the table (measured: recall 0.67 at IoU ≥ 0.5, precision 0.50 on
+/// the claims on ground-truth objects, 0.14 over every claim, map-level adhesion 0.2 per frame, R2G 0.017 m;
+/// without the supporting planes recall 0.47, adhesion 0.9: the brick was one instance with the table).
+#[test]
+fn separates_close_range_objects_from_their_table() {
+    let Some(data) = common::shared_data("ycbv_0000") else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let s = common::run_ok(&data, &dir.path().join("run"), &["--segmenter", "geometric"]);
+    let value = |k: &str| s[k].as_f64().unwrap_or_else(|| panic!("{k} missing"));
+    let (recall, precision, all) = (value("mask_recall"), value("mask_precision"), value("mask_precision_all"));
+    println!("ycbv_0000: recall {recall:.2}, precision {precision:.2} ({all:.2} over every claim)");
+    assert!(recall >= 0.6, "recall {recall:.2}: an object is glued to the table or cut apart");
+    assert!(precision >= 0.4, "precision {precision:.2}: objects are cut into pieces");
+    assert!(all <= precision, "every claim includes those on structure");
+    assert!(value("mask_structure_claims") > 0.0, "the keyboard and the wall are claimed but unlabelled");
+    assert!(value("adhesion_map") <= 0.3, "adhesion {:.2} per frame", value("adhesion_map"));
+    assert!(value("r2g_rmse_m") <= 0.03, "R2G {:.3} m: something observed is not mapped", value("r2g_rmse_m"));
 }

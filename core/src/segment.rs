@@ -3,21 +3,30 @@
 //! (an id image and an instance list), before the pipeline runs: the masks then go through the pipeline as file
 //! masks do (voxels in mask slots, annotation), see [`crate::Mapper::process_segmented`].
 //!
-//! 1. **Objects by local convexity** (the LCCP idea of Stein et al., CVPR 2014, on the depth image as an
-//!    organized cloud): the image is cut in cells of `step × step` pixels (160 across: 4 px at 640 × 480, the
-//!    same angular size at 0.5 m as at 4 m). A cell's point is its centre pixel back-projected at the mean of
-//!    its block's depths on the centre's surface, its normal comes from the neighbouring cells' points. Two
-//!    neighbouring cells join when no depth jump separates them (3 cell spacings + the depth tolerance) and
-//!    their boundary is convex ((n_a − n_b)·d̂ ≥ 0.2: two faces of a box, a can's rim) or nearly flat (normals
-//!    within `seg_concave_tolerance_deg`); a concave boundary (an object standing on a table, two objects
-//!    touching) separates them. A component covering at least
-//!    `seg_min_points` sampled points' worth of pixels is an instance (label `class`, score `seg_score`) unless
-//!    it is structure: a box diagonal above `seg_max_extent`, or flat (smallest σ ≤ 0.2 × the middle one) and
-//!    wide (largest σ ≥ `seg_structure_sigma` = 10 cm: a table top or wall seen between objects).
-//! 2. **Masks**: every pixel with a valid depth on its cell's surface takes the cell's instance.
+//! 1. **Supporting planes**: the image is cut in cells of `step × step` pixels (160 across: 4 px at
+//!    640 × 480, the same angular size at 0.5 m as at 4 m). A cell's point is its centre pixel back-projected
+//!    at the mean of its block's depths on the centre's surface, its normal comes from the neighbouring cells'
+//!    points. Neighbouring cells with no depth jump between them (3 cell spacings + the depth tolerance) and
+//!    normals within 10° form coplanar components; one that is flat (smallest σ ≤ 0.2 × the middle one) and
+//!    wide (largest σ ≥ `seg_structure_sigma` = 10 cm) is a plane, and grows over the linked cells within the
+//!    depth tolerance of its least-squares fit with normals within 25° of it.
+//! 2. **Objects by local convexity** (the LCCP idea of Stein et al., CVPR 2014, on the depth image as an
+//!    organized cloud): two neighbouring cells, both on planes or both off them, join when no depth jump
+//!    separates them and their boundary is convex ((n_a − n_b)·d̂ ≥ 0.2: two faces of a box, a can's rim) or
+//!    nearly flat (normals within `seg_concave_tolerance_deg`); a concave boundary (an object standing on a
+//!    table, two objects touching) separates them. A plane joins a component it meets along a boundary whose
+//!    links are mostly convex (at least 3): it is that object's face (a tall box's front, a cabinet's door); an
+//!    object resting on a plane meets it along a concave crease, where a few links reading convex do not glue
+//!    it to the table. A component covering at least `seg_min_points` sampled points' worth of pixels is an
+//!    instance (label `class`, score `seg_score`) unless it is structure: a box diagonal above
+//!    `seg_max_extent`, or flat and wide as above (a table top or wall seen between objects).
+//! 3. **Masks**: a cell of a component too small to be anything takes the instance of its neighbours on the
+//!    same surface when they name one (a speck of noisy normals inside an object would leave its points to the
+//!    table's Gaussians); every pixel with a valid depth on its cell's surface takes the cell's instance.
 //!
-//! No per-cell pool: the union-find parents, the cells' depths and their quantised normals live in the id image
-//! before the masks are written over them, the component counts in the scratch.
+//! No per-cell pool: the union-find parents, the cells' depths, quantised normals and colours (with each plane
+//! cell's plane in the colour word's spare bits) live in the id image before the masks are written over them;
+//! the coplanar components' parents and then the component counts live in the scratch.
 //!
 //! Measured against ground-truth ids (recall / precision at IoU ≥ 0.5) and the trade-offs tried: see
 //! docs/pipeline.md, "The geometric segmenter".
@@ -214,6 +223,195 @@ impl<'f> Grid<'f> {
     }
 }
 
+/// Bit of a cell's blue colour word (the colour takes 8 bits) that marks it as a supporting plane's cell.
+const PLANE_FLAG: u16 = 0x8000;
+/// Largest angle between the normals of two neighbouring cells of one plane, degrees.
+const PLANE_ANGLE_DEG: f32 = 10.0;
+/// Largest angle between a cell's normal and a plane's for the cell to be the plane's, degrees.
+const PLANE_GROW_DEG: f32 = 25.0;
+/// First bit of a plane cell's plane index in its blue colour word (below [`PLANE_FLAG`], above the colour).
+const PLANE_SHIFT: u16 = 8;
+/// Pairs of raster sweeps over which the planes grow over their noisy cells.
+const PLANE_GROW_SWEEPS: usize = 1;
+/// Most supporting planes one segmentation marks (their index takes the 7 bits below [`PLANE_FLAG`]).
+const MAX_PLANES: usize = 8;
+
+/// Finds the supporting planes of `grid` and sets [`PLANE_FLAG`] in the colour word of each of their cells:
+/// neighbouring cells with no depth jump between them and normals within [`PLANE_ANGLE_DEG`] are joined (the
+/// union-find parents in `work`), and a component of at least `min_cells` cells that is flat (smallest σ at most
+/// `FLAT_RATIO` × the middle one) and wide (largest σ ≥ `seg_structure_sigma`) is a
+/// plane. `counts` (one u16 per cell) is scratch. Returns the cells marked.
+fn mark_planes(
+    grid: &Grid<'_>,
+    work: &mut [u16],
+    counts: &mut [u16],
+    colours: &mut [u16],
+    min_cells: u32,
+    params: &Params,
+) -> u32 {
+    let n = grid.cols * grid.rows;
+    let (Some(parents), Some(counts)) = (work.get_mut(..n), counts.get_mut(..n)) else { return 0 };
+    for (i, p) in parents.iter_mut().enumerate() {
+        *p = i as u16;
+    }
+    let cos_plane = libm::cosf(PLANE_ANGLE_DEG.to_radians());
+    for cy in 0..grid.rows {
+        for cx in 0..grid.cols {
+            let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
+            let jump = grid.jump(pa[2]);
+            for (bx, by) in [(cx + 1, cy), (cx, cy + 1)] {
+                let Some(q) = grid.point_at(bx, by).filter(|q| libm::fabsf(q[2] - pa[2]) <= jump) else { continue };
+                let Some((_, nb)) = grid.cached_normal(bx, by, q) else { continue };
+                if linalg::dot(na, nb) >= cos_plane {
+                    union_find::union(parents, grid.index(cx, cy), grid.index(bx, by));
+                }
+            }
+        }
+    }
+    flatten(parents);
+    let (mut candidates, _) = components(grid, parents, counts, min_cells);
+    // The planes (candidate slot k + 1 → plane index, in each candidate's `instance`).
+    let mut planes: heapless::Vec<(Vec3, Vec3), MAX_PLANES> = heapless::Vec::new();
+    for c in candidates.iter_mut() {
+        let eigen = linalg::sym_eigen(c.moments.covariance());
+        if is_flat_and_wide(eigen.sigmas(), params) && planes.push((c.moments.mean(), eigen.normal())).is_ok() {
+            c.instance = planes.len() as u16;
+        }
+    }
+    let mut marked = 0;
+    for (i, &root) in parents.iter().enumerate() {
+        let slot = counts.get(root as usize).copied().unwrap_or(0) as usize;
+        let plane = slot.checked_sub(1).and_then(|k| candidates.get(k)).map_or(0, |c| c.instance);
+        if let (Some(b), true) = (colours.get_mut(2 * i + 1), plane > 0 && grid.point(i).is_some()) {
+            *b = (*b & 0xff) | PLANE_FLAG | (plane - 1) << PLANE_SHIFT;
+            marked += 1;
+        }
+    }
+    // The planes grow over their noisy cells (normals off by more than the coplanar links allow, which would be
+    // orphan fragments taken for objects): a cell linked to a plane's cell joins that plane when it lies within
+    // the depth tolerance of the plane's least-squares fit with a normal within [`PLANE_GROW_DEG`] of it; a
+    // raster sweep and a reverse sweep, [`PLANE_GROW_SWEEPS`] times.
+    let cos_grow = libm::cosf(PLANE_GROW_DEG.to_radians());
+    let cols = grid.cols.max(1);
+    for sweep in 0..2 * PLANE_GROW_SWEEPS {
+        for k in 0..n {
+            let i = if sweep % 2 == 0 { k } else { n - 1 - k };
+            if colours.get(2 * i + 1).is_none_or(|&b| b & PLANE_FLAG != 0) {
+                continue;
+            }
+            let (cx, cy) = (i % cols, i / cols);
+            let neighbours = [(cx.wrapping_sub(1), cy), (cx + 1, cy), (cx, cy.wrapping_sub(1)), (cx, cy + 1)];
+            let flagged = |&(x, y): &(usize, usize)| {
+                x < grid.cols
+                    && y < grid.rows
+                    && colours.get(2 * grid.index(x, y) + 1).is_some_and(|&b| b & PLANE_FLAG != 0)
+            };
+            if !neighbours.iter().any(flagged) {
+                continue;
+            }
+            let Some((p, normal)) = grid.cached_surfel(cx, cy) else { continue };
+            let jump = grid.jump(p[2]);
+            let tolerance = params.depth_tolerance(p[2]);
+            let joined = neighbours.iter().find_map(|&(x, y)| {
+                grid.point_at(x, y).filter(|q| libm::fabsf(q[2] - p[2]) <= jump)?;
+                let b = colours.get(2 * grid.index(x, y) + 1).copied().filter(|&b| b & PLANE_FLAG != 0)?;
+                let plane = (b & !PLANE_FLAG) >> PLANE_SHIFT;
+                let (centre, axis) = planes.get(plane as usize)?;
+                let near = libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance
+                    && libm::fabsf(linalg::dot(*axis, normal)) >= cos_grow;
+                near.then_some(plane)
+            });
+            if let (Some(plane), Some(b)) = (joined, colours.get_mut(2 * i + 1)) {
+                *b = (*b & 0xff) | PLANE_FLAG | plane << PLANE_SHIFT;
+                marked += 1;
+            }
+        }
+    }
+    marked
+}
+
+/// Points every cell of the union-find `parents` at its root (the lowest index of its component, so earlier
+/// entries are final).
+fn flatten(parents: &mut [u16]) {
+    for i in 0..parents.len() {
+        let root = union_find::find(parents, i);
+        if let Some(p) = parents.get_mut(i) {
+            *p = root as u16;
+        }
+    }
+}
+
+/// The components of the flattened `parents` that cover at least `min_cells` cells with a point, as candidates
+/// with their points' moments and box, and how many found no room; `counts` (one u16 per cell) ends with each
+/// candidate's root holding its index + 1 (0 elsewhere).
+fn components(
+    grid: &Grid<'_>,
+    parents: &[u16],
+    counts: &mut [u16],
+    min_cells: u32,
+) -> (heapless::Vec<Candidate, MAX_CANDIDATES>, u32) {
+    counts.fill(0);
+    for (i, &root) in parents.iter().enumerate() {
+        if grid.point(i).is_some() {
+            if let Some(c) = counts.get_mut(root as usize) {
+                *c = c.saturating_add(1);
+            }
+        }
+    }
+    let mut candidates: heapless::Vec<Candidate, MAX_CANDIDATES> = heapless::Vec::new();
+    let mut truncated = 0;
+    for (i, c) in counts.iter_mut().enumerate() {
+        let big = u32::from(*c) >= min_cells.max(1) && parents.get(i).is_some_and(|&p| p as usize == i);
+        *c = 0;
+        if big {
+            let first = grid.point(i).unwrap_or([0.0; 3]);
+            let fresh = Candidate { moments: linalg::Moments::about(first), lo: first, hi: first, instance: 0 };
+            if candidates.push(fresh).is_ok() {
+                *c = candidates.len() as u16;
+            } else {
+                truncated += 1;
+            }
+        }
+    }
+    for (i, &root) in parents.iter().enumerate() {
+        let slot = counts.get(root as usize).copied().unwrap_or(0) as usize;
+        if let (Some(c), Some(p)) = (slot.checked_sub(1).and_then(|k| candidates.get_mut(k)), grid.point(i)) {
+            c.moments.add(p, 1.0);
+            c.lo = linalg::min_elem(c.lo, p);
+            c.hi = linalg::max_elem(c.hi, p);
+        }
+    }
+    (candidates, truncated)
+}
+
+/// Whether a component with principal scales `sigmas` (metres, largest first) is flat (smallest at most
+/// [`FLAT_RATIO`] × the middle one) and wide (largest ≥ `seg_structure_sigma`): a table top, floor or wall.
+fn is_flat_and_wide(sigmas: Vec3, params: &Params) -> bool {
+    sigmas[2] <= FLAT_RATIO * sigmas[1] && sigmas[0] >= params.seg_structure_sigma
+}
+
+/// Marks a cell of a component too small to be an instance while the masks are filled ([`segment`]).
+const FILL: u16 = u16::MAX;
+/// Pairs of raster sweeps that fill such cells from their neighbours.
+const FILL_SWEEPS: usize = 1;
+
+/// The links between a plane's component and another component ([`segment`]).
+struct Boundary {
+    /// Root cell of the plane's component.
+    plane: u16,
+    /// Root cell of the other component.
+    other: u16,
+    /// Convex links ((n_a − n_b)·d̂ ≥ [`CONVEX_MIN`]).
+    convex: u16,
+    /// All links.
+    links: u16,
+}
+
+/// Most plane–component boundaries one segmentation weighs (more are counted in `truncated` and not joined).
+const MAX_BOUNDARIES: usize = 128;
+/// Least convex links along a boundary that makes a plane an object's face.
+const FACE_MIN_LINKS: u16 = 3;
+
 /// Counts of one segmentation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SegmentStats {
@@ -223,6 +421,8 @@ pub struct SegmentStats {
     pub instances: u32,
     /// Components that qualified but found no room in the instance buffer.
     pub truncated: u32,
+    /// Cells on supporting planes.
+    pub plane_cells: u32,
 }
 
 /// Segments `frame` (depth only): writes the id image `ids` (one u16 per pixel, 0 = none; it is also the
@@ -237,10 +437,8 @@ pub fn segment(
     class: u16,
 ) -> SegmentStats {
     let mut stats = SegmentStats::default();
-    // 1. Components on a grid of cells over the depth image (an organized cloud: neighbours are known
-    // without a search, and the cells are as fine at 0.5 m as at 4 m): neighbouring cells join when no depth
-    // jump separates them and their boundary is locally convex or nearly flat (LCCP).
-    // `ids` holds the parents (n), the cells' depths (n), their quantised normals (3n) and mean colours (2n)
+    // A grid of cells over the depth image (an organized cloud: neighbours are known without a search, and the
+    // cells are as fine at 0.5 m as at 4 m). `ids` holds the parents (n), the cells' depths (n), their quantised normals (3n) and mean colours (2n)
     // until the masks.
     let layout = Grid::layout(frame, scratch.len().min(ids.len() / 7));
     let n = layout.1 * layout.2;
@@ -252,13 +450,6 @@ pub fn segment(
     // of the 16 pixels' ids), else every point is back-projected where it is wanted.
     let points = rest.get_mut(..6 * n).unwrap_or(&mut []);
     Grid::fill(frame, params, layout, depth, colours);
-    let colours = &*colours;
-    let colour_of = |i: usize| -> [i32; 3] {
-        match colours.get(2 * i..2 * i + 2) {
-            Some(&[rg, b]) => [(rg & 0xff) as i32, (rg >> 8) as i32, b as i32],
-            _ => [0; 3],
-        }
-    };
     let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth, normals: &[], points: &[] };
     for (i, q) in points.chunks_exact_mut(6).enumerate() {
         let p = grid.point(i).unwrap_or([0.0; 3]);
@@ -276,89 +467,103 @@ pub fn segment(
         }
     }
     let grid = Grid { normals, ..grid };
+    // 1. Supporting planes ([`mark_planes`]): their cells are marked in their colour word.
+    let min_cells =
+        (params.seg_min_points as f32 / params.sample_rate.max(1e-3) / (grid.step * grid.step) as f32) as u32;
+    let planes = mark_planes(&grid, scratch, parents, colours, min_cells, params);
+    stats.plane_cells = planes;
+    let colours = &*colours;
+    let colour_of = |i: usize| -> [i32; 3] {
+        match colours.get(2 * i..2 * i + 2) {
+            Some(&[rg, b]) => [(rg & 0xff) as i32, (rg >> 8) as i32, (b & 0xff) as i32],
+            _ => [0; 3],
+        }
+    };
+    let on_plane = |i: usize| colours.get(2 * i + 1).is_some_and(|&b| b & PLANE_FLAG != 0);
+    // 2. Objects: neighbouring cells join when no depth jump separates them and their boundary is locally
+    // convex or nearly flat (LCCP).
     let cos_flat = libm::cosf(params.seg_concave_tolerance_deg.to_radians());
     for (i, p) in parents.iter_mut().enumerate() {
         *p = i as u16;
     }
-    for cy in 0..grid.rows {
-        for cx in 0..grid.cols {
-            let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
-            let jump = grid.jump(pa[2]);
-            let ia = grid.index(cx, cy);
-            let ca = colour_of(ia);
-            for (dx, dy) in [(1, 0), (0, 1)] {
-                let (bx, by) = (cx + dx, cy + dy);
-                // Joined: cell b has a point on the same surface (no depth jump between them).
-                let Some(q) = grid.point_at(bx, by).filter(|q| libm::fabsf(q[2] - pa[2]) <= jump) else { continue };
-                let Some((pb, nb)) = grid.cached_normal(bx, by, q) else { continue };
-                let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
-                let bend = linalg::dot(linalg::sub(na, nb), towards);
-                let convex = bend >= CONVEX_MIN;
-                // A nearly flat boundary that bends inwards between cells of different colour is a contact (a
-                // ball on the floor, a can against a crate: the surfaces meet tangentially, so the concave
-                // crease is too faint for the normals), not one surface.
-                let ib = grid.index(bx, by);
-                let contact = || {
-                    let cb = colour_of(ib);
-                    bend < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
-                };
-                if convex || (linalg::dot(na, nb) >= cos_flat && !contact()) {
-                    union_find::union(parents, ia, ib);
+    // Every link between neighbouring cells on one surface (no depth jump): (a, b, bend (n_a − n_b)·d̂, n_a·n_b).
+    // Every link between neighbouring cells on one surface (no depth jump) that `boundary` selects (links
+    // across a plane's boundary, or the others): f(a, b, bend (n_a − n_b)·d̂, n_a·n_b).
+    let for_each_link = |boundary: bool, f: &mut dyn FnMut(usize, usize, f32, f32)| {
+        for cy in 0..grid.rows {
+            for cx in 0..grid.cols {
+                let ia = grid.index(cx, cy);
+                let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
+                let jump = grid.jump(pa[2]);
+                for (bx, by) in [(cx + 1, cy), (cx, cy + 1)] {
+                    let ib = grid.index(bx, by);
+                    if bx >= grid.cols || (on_plane(ia) != on_plane(ib)) != boundary {
+                        continue;
+                    }
+                    let Some(q) = grid.point_at(bx, by).filter(|q| libm::fabsf(q[2] - pa[2]) <= jump) else {
+                        continue;
+                    };
+                    let Some((pb, nb)) = grid.cached_normal(bx, by, q) else { continue };
+                    let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
+                    f(ia, ib, linalg::dot(linalg::sub(na, nb), towards), linalg::dot(na, nb));
                 }
             }
         }
-    }
-    // Every cell points at its root (the lowest index of its component, so earlier entries are final).
-    for i in 0..n {
-        let root = union_find::find(parents, i);
-        if let Some(p) = parents.get_mut(i) {
-            *p = root as u16;
+    };
+    // A plane's cells join only each other here (see below for an object's face).
+    for_each_link(false, &mut |ia, ib, bend, cos| {
+        // A nearly flat boundary that bends inwards between cells of different colour is a contact (a ball on
+        // the floor, a can against a crate: the surfaces meet tangentially, so the concave crease is too faint
+        // for the normals), not one surface.
+        let contact = || {
+            let (ca, cb) = (colour_of(ia), colour_of(ib));
+            bend < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
+        };
+        if bend >= CONVEX_MIN || (cos >= cos_flat && !contact()) {
+            union_find::union(parents, ia, ib);
         }
-    }
-    // Cells per component, counted at its root in `scratch`.
-    let counts = scratch.get_mut(..n).unwrap_or(&mut []);
-    counts.fill(0);
-    for (i, &root) in parents.iter().enumerate() {
-        if grid.point(i).is_some() {
-            if let Some(c) = counts.get_mut(root as usize) {
-                *c = c.saturating_add(1);
+    });
+    // A plane that meets a component along a mostly convex boundary is that object's face (a box's side, a
+    // cabinet's front), not a support: it joins it. An object resting on a plane meets it along a concave crease
+    // (a few links may read convex there: the majority decides, as in LCCP's segment-level convexity).
+    let mut boundaries: heapless::Vec<Boundary, MAX_BOUNDARIES> = heapless::Vec::new();
+    for_each_link(true, &mut |ia, ib, bend, _| {
+        let (plane, other) = if on_plane(ia) { (ia, ib) } else { (ib, ia) };
+        let key = (union_find::find(parents, plane) as u16, union_find::find(parents, other) as u16);
+        let at = match boundaries.iter().position(|b| (b.plane, b.other) == key) {
+            Some(k) => k,
+            None => {
+                let fresh = Boundary { plane: key.0, other: key.1, convex: 0, links: 0 };
+                if boundaries.push(fresh).is_err() {
+                    stats.truncated += 1;
+                    return;
+                }
+                boundaries.len() - 1
             }
+        };
+        if let Some(b) = boundaries.get_mut(at) {
+            b.links = b.links.saturating_add(1);
+            b.convex = b.convex.saturating_add(u16::from(bend >= CONVEX_MIN));
+        }
+    });
+    for b in &boundaries {
+        if b.convex >= FACE_MIN_LINKS && 2 * b.convex > b.links {
+            union_find::union(parents, b.plane as usize, b.other as usize);
         }
     }
+    flatten(parents);
     // Components covering at least `seg_min_points` sampled points' worth of pixels become candidates;
     // `scratch[root]` then holds candidate index + 1.
-    let min_cells =
-        (params.seg_min_points as f32 / params.sample_rate.max(1e-3) / (grid.step * grid.step) as f32) as u32;
-    let mut candidates: heapless::Vec<Candidate, MAX_CANDIDATES> = heapless::Vec::new();
-    for (i, c) in counts.iter_mut().enumerate() {
-        let big = u32::from(*c) >= min_cells.max(1) && parents.get(i).is_some_and(|&p| p as usize == i);
-        *c = 0;
-        if big {
-            let first = grid.point(i).unwrap_or([0.0; 3]);
-            let fresh = Candidate { moments: linalg::Moments::about(first), lo: first, hi: first, instance: 0 };
-            if candidates.push(fresh).is_ok() {
-                *c = candidates.len() as u16;
-            } else {
-                stats.truncated += 1;
-            }
-        }
-    }
-    for (i, &root) in parents.iter().enumerate() {
-        let slot = counts.get(root as usize).copied().unwrap_or(0) as usize;
-        if let (Some(c), Some(p)) = (slot.checked_sub(1).and_then(|k| candidates.get_mut(k)), grid.point(i)) {
-            c.moments.add(p, 1.0);
-            c.lo = linalg::min_elem(c.lo, p);
-            c.hi = linalg::max_elem(c.hi, p);
-        }
-    }
+    let counts = scratch.get_mut(..n).unwrap_or(&mut []);
+    let (mut candidates, truncated) = components(&grid, parents, counts, min_cells);
+    stats.truncated += truncated;
     stats.components = candidates.len() as u32;
     // Structure is large, or flat and wide (a table top or a wall seen between objects); the rest are objects.
     let mut written = 0usize;
     for c in candidates.iter_mut() {
         let extent = linalg::norm(linalg::sub(c.hi, c.lo));
         let sigmas = linalg::sym_eigen(c.moments.covariance()).sigmas();
-        let flat = sigmas[2] <= FLAT_RATIO * sigmas[1] && sigmas[0] >= params.seg_structure_sigma;
-        if extent > params.seg_max_extent || flat {
+        if extent > params.seg_max_extent || is_flat_and_wide(sigmas, params) {
             continue;
         }
         let Some(slot) = instances.get_mut(written) else {
@@ -370,15 +575,52 @@ pub fn segment(
         c.instance = written as u16;
     }
     // Each cell's instance replaces its root (a root is read before its own entry is replaced: roots come first).
+    // A cell of a component too small to be anything (a cell whose normal is noise, a speck between depth holes)
+    // is marked [`FILL`] instead of 0.
     for i in 0..n {
         let root = parents.get(i).copied().unwrap_or(0) as usize;
         let slot = counts.get(root).copied().unwrap_or(0) as usize;
-        let instance = slot.checked_sub(1).and_then(|k| candidates.get(k)).map_or(0, |c| c.instance);
+        let instance = match slot.checked_sub(1).and_then(|k| candidates.get(k)) {
+            Some(c) => c.instance,
+            None if grid.point(i).is_some() && !on_plane(i) => FILL,
+            None => 0,
+        };
         if let Some(x) = parents.get_mut(i) {
             *x = instance;
         }
     }
-    // 2. Masks: every pixel with a valid depth near its cell's takes the cell's instance. Pixels are written
+    // Such a cell takes the instance of its neighbours on the same surface when they name exactly one (a hole in
+    // an object's mask would leave its points to the Gaussians of what it rests on); a raster sweep and a
+    // reverse sweep, [`FILL_SWEEPS`] times; what is left is no instance.
+    let cols = grid.cols.max(1);
+    for sweep in 0..2 * FILL_SWEEPS {
+        for k in 0..n {
+            let i = if sweep % 2 == 0 { k } else { n - 1 - k };
+            if parents.get(i) != Some(&FILL) {
+                continue;
+            }
+            let (cx, cy) = (i % cols, i / cols);
+            let Some(p) = grid.point(i) else { continue };
+            let jump = grid.jump(p[2]);
+            let mut named: Option<u16> = None;
+            let mut unique = true;
+            for (x, y) in [(cx.wrapping_sub(1), cy), (cx + 1, cy), (cx, cy.wrapping_sub(1)), (cx, cy + 1)] {
+                if grid.point_at(x, y).is_none_or(|q| libm::fabsf(q[2] - p[2]) > jump) {
+                    continue;
+                }
+                let Some(&id) = parents.get(grid.index(x, y)).filter(|&&id| id != 0 && id != FILL) else { continue };
+                unique &= named.is_none_or(|m| m == id);
+                named = Some(id);
+            }
+            if let (Some(id), true, Some(x)) = (named, unique, parents.get_mut(i)) {
+                *x = id;
+            }
+        }
+    }
+    for x in parents.iter_mut().filter(|x| **x == FILL) {
+        *x = 0;
+    }
+    // 3. Masks: every pixel with a valid depth near its cell's takes the cell's instance. Pixels are written
     // from the last: pixel i's cell index is at most i, so no cell is overwritten before its pixels are done.
     let (lo, hi) = frame.raw_range(params);
     let (w, h) = (frame.width as usize, frame.height as usize);

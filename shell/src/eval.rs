@@ -557,14 +557,20 @@ pub const MASK_MATCH_IOU: f64 = 0.5;
 
 /// How one frame's instance masks match its ground-truth instance image (docs/metrics.md): every ground-truth
 /// id ≠ 0 with at least [`MASK_GT_MIN_PIXELS`] pixels is an instance to find (id 0 is structure: floor, walls,
-/// table, nothing), every mask instance with a pixel is a claim, and pairs with IoU ≥ [`MASK_MATCH_IOU`] match
-/// one to one (greedily by IoU). Recall = matched / ground-truth instances, precision = matched / mask instances.
+/// table, and whatever the ground truth leaves unlabelled), every mask instance with a pixel is a claim, and
+/// pairs with IoU ≥ [`MASK_MATCH_IOU`] match one to one (greedily by IoU). A claim with fewer than half of its
+/// pixels on ground-truth instances is a claim on structure, which the ground truth cannot judge (a table leg, a
+/// keyboard the dataset leaves unlabelled): it never matches (IoU ≥ 0.5 needs half its pixels on the instance).
+/// Recall = matched / ground-truth instances; precision = matched / claims on ground-truth instances, and
+/// [`MaskMatch::precision_all`] = matched / every claim.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MaskMatch {
     /// Ground-truth instances to find.
     pub gt_instances: u32,
     /// Mask instances with at least one pixel.
     pub mask_instances: u32,
+    /// Of those, claims on structure: fewer than half of their pixels on ground-truth instances.
+    pub structure_claims: u32,
     /// Matched pairs.
     pub matched: u32,
     /// Sum of the matched pairs' IoU.
@@ -577,8 +583,14 @@ impl MaskMatch {
         (self.gt_instances > 0).then(|| self.matched as f64 / self.gt_instances as f64)
     }
 
-    /// Matched / mask instances (`None` without any).
+    /// Matched / claims on ground-truth instances (`None` without any).
     pub fn precision(&self) -> Option<f64> {
+        let judged = self.mask_instances.saturating_sub(self.structure_claims);
+        (judged > 0).then(|| self.matched as f64 / judged as f64)
+    }
+
+    /// Matched / every mask instance, claims on structure included (`None` without any).
+    pub fn precision_all(&self) -> Option<f64> {
         (self.mask_instances > 0).then(|| self.matched as f64 / self.mask_instances as f64)
     }
 
@@ -592,6 +604,7 @@ impl MaskMatch {
         MaskMatch {
             gt_instances: self.gt_instances + other.gt_instances,
             mask_instances: self.mask_instances + other.mask_instances,
+            structure_claims: self.structure_claims + other.structure_claims,
             matched: self.matched + other.matched,
             iou_sum: self.iou_sum + other.iou_sum,
         }
@@ -608,14 +621,16 @@ pub fn mask_match(masks: &FrameMasks, gt: &[u16]) -> MaskMatch {
         *gt_area.entry(id).or_default() += 1;
     }
     let mut area = vec![0u32; k];
+    let mut labelled = vec![0u32; k];
     let mut inter: HashMap<(usize, u16), u32> = HashMap::new();
     for v in 0..h {
         for u in 0..w {
             let id = gt.get(v * w + u).copied().unwrap_or(0);
-            for (i, a) in area.iter_mut().enumerate() {
+            for (i, (a, l)) in area.iter_mut().zip(labelled.iter_mut()).enumerate() {
                 if view.contains(i, u as u16, v as u16) {
                     *a += 1;
                     if id != 0 {
+                        *l += 1;
                         *inter.entry((i, id)).or_default() += 1;
                     }
                 }
@@ -637,6 +652,7 @@ pub fn mask_match(masks: &FrameMasks, gt: &[u16]) -> MaskMatch {
     let mut out = MaskMatch {
         gt_instances: gt_area.keys().filter(|&&id| counted(id)).count() as u32,
         mask_instances: area.iter().filter(|&&a| a > 0).count() as u32,
+        structure_claims: area.iter().zip(&labelled).filter(|&(&a, &l)| a > 0 && 2 * l < a).count() as u32,
         ..MaskMatch::default()
     };
     for (iou, i, id) in pairs {
@@ -976,7 +992,24 @@ mod tests {
         assert_eq!(m.matched, 3, "A (IoU 1), B's larger part (0.6), C with its structure (0.5)");
         assert!((m.iou_sum - 2.1).abs() < 1e-9, "{m:?}");
         assert_eq!(m.recall(), Some(1.0));
+        assert_eq!(m.structure_claims, 0, "every claim lies mostly on ground-truth instances");
         assert_eq!(m.precision(), Some(0.6));
+        assert_eq!(m.precision_all(), Some(0.6));
+        // A claim on structure alone (below the objects) is not judged by precision, only by precision_all; one
+        // with half its pixels on an object is judged.
+        let mut ids = match &masks.pixels {
+            Pixels::Ids(ids) => ids.clone(),
+            _ => unreachable!(),
+        };
+        fill(&mut ids, 0, 10, 10, 20, 6);
+        fill(&mut ids, 32, 40, 0, 20, 7);
+        fill(&mut ids, 30, 32, 3, 6, 5);
+        let with_structure =
+            FrameMasks { instances: (1..=7).map(instance).collect(), pixels: Pixels::Ids(ids), ..masks.clone() };
+        let s = mask_match(&with_structure, &gt);
+        assert_eq!((s.mask_instances, s.structure_claims, s.matched), (7, 2, 3), "{s:?}");
+        assert_eq!(s.precision(), Some(0.6), "claims 6 and 7 lie on structure; the sliver's (5) is half on it");
+        assert!((s.precision_all().unwrap_or(0.0) - 3.0 / 7.0).abs() < 1e-9);
         assert!((m.mean_iou().unwrap_or(0.0) - 0.7).abs() < 1e-9);
         // Without C's mask: recall 2/3; without any mask nothing is claimed.
         let no_c =

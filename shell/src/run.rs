@@ -194,8 +194,13 @@ pub struct FrameRecord {
     /// Instance recall of this frame's masks (file or segmenter) against `gt/` at IoU ≥ 0.5
     /// ([`eval::mask_match`]; needs `gt/`).
     pub mask_recall: Option<f64>,
-    /// Instance precision of the masks at IoU ≥ 0.5.
+    /// Instance precision of the masks at IoU ≥ 0.5: matched / claims on ground-truth instances (a claim with
+    /// fewer than half its pixels on them is on structure, which the ground truth cannot judge).
     pub mask_precision: Option<f64>,
+    /// Matched / every claim, claims on structure included.
+    pub mask_precision_all: Option<f64>,
+    /// Mask instances on structure (fewer than half their pixels on ground-truth instances).
+    pub mask_structure_claims: Option<u32>,
     /// Mean IoU of the matched masks.
     pub mask_mean_iou: Option<f64>,
     /// The counts behind the three (pooled over the run for `summary.json`; not written).
@@ -315,8 +320,12 @@ pub struct Summary {
     /// Instance recall of the masks against `gt/` at IoU ≥ 0.5, pooled over the frames (matched / ground-truth
     /// instances; [`eval::mask_match`]).
     pub mask_recall: Option<f64>,
-    /// Instance precision of the masks at IoU ≥ 0.5, pooled (matched / mask instances).
+    /// Instance precision of the masks at IoU ≥ 0.5, pooled (matched / claims on ground-truth instances).
     pub mask_precision: Option<f64>,
+    /// Matched / every claim, pooled (claims on structure included).
+    pub mask_precision_all: Option<f64>,
+    /// Mask instances on structure per frame (mean).
+    pub mask_structure_claims: Option<f64>,
     /// Mean IoU of the matched masks, pooled.
     pub mask_mean_iou: Option<f64>,
     /// Mean G2R against the true surfaces, metres.
@@ -753,6 +762,8 @@ fn replay<P: Profile + Zeroable>(
                 sq_sizes: sq_sizes.unwrap_or_default(),
                 mask_recall: mask_match.and_then(|m| m.recall()),
                 mask_precision: mask_match.and_then(|m| m.precision()),
+                mask_precision_all: mask_match.and_then(|m| m.precision_all()),
+                mask_structure_claims: mask_match.map(|m| m.structure_claims),
                 mask_mean_iou: mask_match.and_then(|m| m.mean_iou()),
                 mask_match,
                 g2r_true_rmse_m: truth.as_ref().and_then(|t| t.g2r_true_rmse_m),
@@ -881,6 +892,8 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
         sq_size_error_max: size_errors.iter().copied().reduce(f64::max),
         mask_recall: masks_pooled.and_then(|m| m.recall()),
         mask_precision: masks_pooled.and_then(|m| m.precision()),
+        mask_precision_all: masks_pooled.and_then(|m| m.precision_all()),
+        mask_structure_claims: mean_of(records.iter().map(|r| r.mask_structure_claims.map(f64::from))),
         mask_mean_iou: masks_pooled.and_then(|m| m.mean_iou()),
         g2r_true_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_rmse_m)),
         g2r_true_sq_rmse_m: mean_of(records.iter().map(|r| r.g2r_true_sq_rmse_m)),
