@@ -392,6 +392,9 @@ fn is_flat_and_wide(sigmas: Vec3, params: &Params) -> bool {
 
 /// Marks a cell of a component too small to be an instance while the masks are filled ([`segment`]).
 const FILL: u16 = u16::MAX;
+/// Least of a cell's four neighbours that must name the instance it takes: a hole inside an object, not a speck
+/// of the wall beside it (on room-scale frames the link tolerance spans several centimetres of depth).
+const FILL_MIN_NEIGHBOURS: usize = 3;
 /// Pairs of raster sweeps that fill such cells from their neighbours.
 const FILL_SWEEPS: usize = 1;
 
@@ -604,6 +607,7 @@ pub fn segment(
             let jump = grid.jump(p[2]);
             let mut named: Option<u16> = None;
             let mut unique = true;
+            let mut naming = 0;
             for (x, y) in [(cx.wrapping_sub(1), cy), (cx + 1, cy), (cx, cy.wrapping_sub(1)), (cx, cy + 1)] {
                 if grid.point_at(x, y).is_none_or(|q| libm::fabsf(q[2] - p[2]) > jump) {
                     continue;
@@ -611,8 +615,9 @@ pub fn segment(
                 let Some(&id) = parents.get(grid.index(x, y)).filter(|&&id| id != 0 && id != FILL) else { continue };
                 unique &= named.is_none_or(|m| m == id);
                 named = Some(id);
+                naming += 1;
             }
-            if let (Some(id), true, Some(x)) = (named, unique, parents.get_mut(i)) {
+            if let (Some(id), true, Some(x)) = (named, unique && naming >= FILL_MIN_NEIGHBOURS, parents.get_mut(i)) {
                 *x = id;
             }
         }
