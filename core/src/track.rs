@@ -172,7 +172,9 @@ pub struct Tracker<'a> {
 /// What an update did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Updated {
-    /// Index of the track in the pool, `None` when the pool was full (the measurement is used unsmoothed).
+    /// Index of the track in the pool, `None` when the pool was full of tracks updated in this frame (the
+    /// measurement is used unsmoothed); a full pool otherwise gives the new track the slot of the track unseen
+    /// for the most frames.
     pub index: Option<usize>,
     /// Whether a new track was started.
     pub new: bool,
@@ -323,7 +325,23 @@ impl<'a> Tracker<'a> {
             }
         }
         let track = Track { sq: *sq, id: self.next_id, class, last_frame: frame, updates: 1, last_jump_deg: 0.0 };
-        let index = self.tracks.push(track);
+        let mut index = self.tracks.push(track);
+        if index.is_none() {
+            // The pool is full (counted as its overflow): the track unseen for the most frames gives way, the
+            // lowest slot on ties; a track updated in this frame never does (then the new one is refused).
+            let stalest = self
+                .tracks
+                .as_slice()
+                .iter()
+                .enumerate()
+                .filter(|(_, t)| t.last_frame != frame)
+                .max_by_key(|&(i, t)| (frame.wrapping_sub(t.last_frame), core::cmp::Reverse(i)))
+                .map(|(i, _)| i);
+            if let Some(slot) = stalest.and_then(|i| self.tracks.get_mut(i)) {
+                *slot = track;
+                index = stalest;
+            }
+        }
         if index.is_some() {
             self.next_id = self.next_id.wrapping_add(1);
         }
@@ -387,6 +405,34 @@ mod tests {
         assert_eq!((u.peak, u.overflow_events), (2, 0), "the next frame reports no refusal of its own");
         tracker.update(&sq(0.0), 1, &params, true);
         assert_eq!(tracker.tracks.usage().overflow_events, 0, "an existing track takes it");
+    }
+
+    /// A full track pool gives the slot of the track unseen for the most frames to a new object; tracks
+    /// updated in this frame keep theirs.
+    #[test]
+    fn a_full_track_pool_drops_the_track_unseen_longest() {
+        let params = Params::default();
+        let mut storage = [Track::zeroed(); 3];
+        let mut tracker = Tracker::new(Bounded::new(&mut storage));
+        let sq = |x: f32| Superquadric { centre: [x, 0.0, 2.0], ..Superquadric::default_shape() };
+        tracker.begin_frame(&params);
+        for k in 0..3 {
+            tracker.update(&sq(k as f32), 1, &params, true);
+        }
+        tracker.begin_frame(&params);
+        tracker.update(&sq(0.0), 1, &params, true);
+        tracker.update(&sq(2.0), 1, &params, true);
+        tracker.begin_frame(&params);
+        tracker.update(&sq(0.0), 1, &params, true);
+        // Track 1 (x = 1) was last seen 2 frames ago, track 2 (x = 2) 1 frame ago: a new object takes track 1's slot.
+        let new = tracker.update(&sq(5.0), 1, &params, true);
+        assert_eq!((new.index, new.new), (Some(1), true));
+        let ids = [0, 1, 2].map(|i| tracker.tracks.get(i).map(|t| t.id));
+        assert_eq!(ids, [Some(0), Some(3), Some(2)]);
+        assert_eq!(tracker.tracks.usage().overflow_events, 1, "the full pool is still reported");
+        // Every other track was updated this frame or is the new one: one more object is refused.
+        tracker.update(&sq(2.0), 1, &params, true);
+        assert_eq!(tracker.update(&sq(9.0), 1, &params, true).index, None);
     }
 
     #[test]
