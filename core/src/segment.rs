@@ -21,8 +21,9 @@
 //!    instance (label `class`, score `seg_score`) unless it is structure: a box diagonal above
 //!    `seg_max_extent`, or flat and wide as above (a table top or wall seen between objects).
 //! 3. **Masks**: a cell of a component too small to be anything takes the instance of its neighbours on the
-//!    same surface when they name one (a speck of noisy normals inside an object would leave its points to the
-//!    table's Gaussians); every pixel with a valid depth on its cell's surface takes the cell's instance.
+//!    same surface when at least 3 of its 4 name it and none another (a hole of noisy normals inside an object
+//!    would leave its points to the table's Gaussians); every pixel with a valid depth on its cell's surface
+//!    takes the cell's instance.
 //!
 //! No per-cell pool: the union-find parents, the cells' depths, quantised normals and colours (with each plane
 //! cell's plane in the colour word's spare bits) live in the id image before the masks are written over them;
@@ -422,7 +423,8 @@ pub struct SegmentStats {
     pub components: u32,
     /// Instances written.
     pub instances: u32,
-    /// Components that qualified but found no room in the instance buffer.
+    /// Components that qualified but found no room in the instance buffer or the candidates, and plane links
+    /// whose boundary found no room in the boundary table (not weighed).
     pub truncated: u32,
     /// Cells on supporting planes.
     pub plane_cells: u32,
@@ -441,8 +443,8 @@ pub fn segment(
 ) -> SegmentStats {
     let mut stats = SegmentStats::default();
     // A grid of cells over the depth image (an organized cloud: neighbours are known without a search, and the
-    // cells are as fine at 0.5 m as at 4 m). `ids` holds the parents (n), the cells' depths (n), their quantised normals (3n) and mean colours (2n)
-    // until the masks.
+    // cells are as fine at 0.5 m as at 4 m). `ids` holds the parents (n), the cells' depths (n), their quantised
+    // normals (3n) and mean colours (2n) until the masks.
     let layout = Grid::layout(frame, scratch.len().min(ids.len() / 7));
     let n = layout.1 * layout.2;
     let (parents, rest) = ids.split_at_mut(n.min(ids.len()));
@@ -489,7 +491,6 @@ pub fn segment(
     for (i, p) in parents.iter_mut().enumerate() {
         *p = i as u16;
     }
-    // Every link between neighbouring cells on one surface (no depth jump): (a, b, bend (n_a − n_b)·d̂, n_a·n_b).
     // Every link between neighbouring cells on one surface (no depth jump) that `boundary` selects (links
     // across a plane's boundary, or the others): f(a, b, bend (n_a − n_b)·d̂, n_a·n_b).
     let for_each_link = |boundary: bool, f: &mut dyn FnMut(usize, usize, f32, f32)| {
@@ -592,9 +593,10 @@ pub fn segment(
             *x = instance;
         }
     }
-    // Such a cell takes the instance of its neighbours on the same surface when they name exactly one (a hole in
-    // an object's mask would leave its points to the Gaussians of what it rests on); a raster sweep and a
-    // reverse sweep, [`FILL_SWEEPS`] times; what is left is no instance.
+    // Such a cell takes the instance of its neighbours on the same surface when at least
+    // [`FILL_MIN_NEIGHBOURS`] of its four name it and none another (a hole in an object's mask would leave its
+    // points to the Gaussians of what it rests on); a raster sweep and a reverse sweep, [`FILL_SWEEPS`] times;
+    // what is left is no instance.
     let cols = grid.cols.max(1);
     for sweep in 0..2 * FILL_SWEEPS {
         for k in 0..n {

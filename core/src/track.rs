@@ -424,7 +424,8 @@ mod tests {
         tracker.update(&sq(2.0), 1, &params, true);
         tracker.begin_frame(&params);
         tracker.update(&sq(0.0), 1, &params, true);
-        // Track 1 (x = 1) was last seen 2 frames ago, track 2 (x = 2) 1 frame ago: a new object takes track 1's slot.
+        // Track 1 (x = 1) was last seen 2 frames ago, track 2 (x = 2) 1 frame ago: a new object takes track 1's
+        // slot.
         let new = tracker.update(&sq(5.0), 1, &params, true);
         assert_eq!((new.index, new.new), (Some(1), true));
         let ids = [0, 1, 2].map(|i| tracker.tracks.get(i).map(|t| t.id));
