@@ -184,6 +184,12 @@ impl<'f> Grid<'f> {
         surface_jump(self.frame, self.params, self.step, z)
     }
 
+    /// The point of cell (x, y) when it lies on the surface of a cell whose point has depth `z` (metres): no
+    /// depth jump (`jump`, [`Grid::jump`] at `z`) separates them.
+    fn linked(&self, x: usize, y: usize, z: f32, jump: f32) -> Option<Vec3> {
+        self.point_at(x, y).filter(|q| libm::fabsf(q[2] - z) <= jump)
+    }
+
     /// [`Grid::surfel`] from the normals computed once per cell (quantised to 1/32767).
     fn cached_surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
         self.cached_normal(cx, cy, self.point_at(cx, cy)?)
@@ -208,7 +214,7 @@ impl<'f> Grid<'f> {
             if x < 0 || y < 0 {
                 return None;
             }
-            self.point_at(x as usize, y as usize).filter(|q| libm::fabsf(q[2] - p[2]) <= jump)
+            self.linked(x as usize, y as usize, p[2], jump)
         };
         let along = |dx: isize, dy: isize| -> Option<Vec3> {
             match (side(dx, dy), side(-dx, -dy)) {
@@ -261,7 +267,7 @@ fn mark_planes(
             let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
             let jump = grid.jump(pa[2]);
             for (bx, by) in [(cx + 1, cy), (cx, cy + 1)] {
-                let Some(q) = grid.point_at(bx, by).filter(|q| libm::fabsf(q[2] - pa[2]) <= jump) else { continue };
+                let Some(q) = grid.linked(bx, by, pa[2], jump) else { continue };
                 let Some((_, nb)) = grid.cached_normal(bx, by, q) else { continue };
                 if linalg::dot(na, nb) >= cos_plane {
                     union_find::union(parents, grid.index(cx, cy), grid.index(bx, by));
@@ -301,7 +307,7 @@ fn mark_planes(
                 continue;
             }
             let (cx, cy) = (i % cols, i / cols);
-            let neighbours = [(cx.wrapping_sub(1), cy), (cx + 1, cy), (cx, cy.wrapping_sub(1)), (cx, cy + 1)];
+            let neighbours = four_neighbours(cx, cy);
             let flagged = |&(x, y): &(usize, usize)| {
                 x < grid.cols
                     && y < grid.rows
@@ -314,7 +320,7 @@ fn mark_planes(
             let jump = grid.jump(p[2]);
             let tolerance = params.depth_tolerance(p[2]);
             let joined = neighbours.iter().find_map(|&(x, y)| {
-                grid.point_at(x, y).filter(|q| libm::fabsf(q[2] - p[2]) <= jump)?;
+                grid.linked(x, y, p[2], jump)?;
                 let b = colours.get(2 * grid.index(x, y) + 1).copied().filter(|&b| b & PLANE_FLAG != 0)?;
                 let plane = (b & !PLANE_FLAG) >> PLANE_SHIFT;
                 let (centre, axis) = planes.get(plane as usize)?;
@@ -329,6 +335,12 @@ fn mark_planes(
         }
     }
     marked
+}
+
+/// The left, right, upper and lower neighbours of cell (cx, cy); one beyond the grid has a coordinate past its
+/// end (`usize::MAX` before 0), which [`Grid::point_at`] refuses.
+fn four_neighbours(cx: usize, cy: usize) -> [(usize, usize); 4] {
+    [(cx.wrapping_sub(1), cy), (cx + 1, cy), (cx, cy.wrapping_sub(1)), (cx, cy + 1)]
 }
 
 /// Points every cell of the union-find `parents` at its root (the lowest index of its component, so earlier
@@ -504,9 +516,7 @@ pub fn segment(
                     if bx >= grid.cols || (on_plane(ia) != on_plane(ib)) != boundary {
                         continue;
                     }
-                    let Some(q) = grid.point_at(bx, by).filter(|q| libm::fabsf(q[2] - pa[2]) <= jump) else {
-                        continue;
-                    };
+                    let Some(q) = grid.linked(bx, by, pa[2], jump) else { continue };
                     let Some((pb, nb)) = grid.cached_normal(bx, by, q) else { continue };
                     let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
                     f(ia, ib, linalg::dot(linalg::sub(na, nb), towards), linalg::dot(na, nb));
@@ -610,8 +620,8 @@ pub fn segment(
             let mut named: Option<u16> = None;
             let mut unique = true;
             let mut naming = 0;
-            for (x, y) in [(cx.wrapping_sub(1), cy), (cx + 1, cy), (cx, cy.wrapping_sub(1)), (cx, cy + 1)] {
-                if grid.point_at(x, y).is_none_or(|q| libm::fabsf(q[2] - p[2]) > jump) {
+            for (x, y) in four_neighbours(cx, cy) {
+                if grid.linked(x, y, p[2], jump).is_none() {
                     continue;
                 }
                 let Some(&id) = parents.get(grid.index(x, y)).filter(|&&id| id != 0 && id != FILL) else { continue };
