@@ -5,8 +5,9 @@
 //! object. The plane stores its centroid, tangent frame (e1, e2), normal n = e1 × e2, principal scales,
 //! eigenvalue ratio, colour, source cluster, and the occupied cells of a `g_p` grid in its tangent plane, as a
 //! bitmap of [`PLANE_GRID`]² cells centred on the centroid. One representative point per occupied cell
-//! (its centre, equation 10) reconstructs it; cells come only from support points, so the plane is bounded by
-//! what was observed and never fills unobserved space.
+//! (its centre, equation 10) reconstructs it; cells come only from support points that lie on the plane (within
+//! the depth tolerance at their depth), so the plane is bounded by what was observed of it and never claims the
+//! footprint of an object standing on it.
 
 use bytemuck::Zeroable;
 
@@ -178,6 +179,13 @@ impl Plane {
         lo.0 != usize::MAX && a + reach >= lo.0 && a <= hi.0 + reach && b + reach >= lo.1 && b <= hi.1 + reach
     }
 
+    /// Whether point `p` (camera frame, metres) lies on the plane: within the depth tolerance at its depth
+    /// ([`Params::depth_tolerance`]) of the plane through the centroid. Only such a point shows where the plane
+    /// was seen, so only such points mark cells.
+    pub fn is_on_plane(&self, p: Vec3, params: &Params) -> bool {
+        libm::fabsf(linalg::dot(linalg::sub(p, self.centroid), self.normal)) <= params.depth_tolerance(p[2])
+    }
+
     fn occupy(&mut self, a: usize, b: usize) {
         let i = b * PLANE_GRID + a;
         if let Some(byte) = self.cells.get_mut(i / 8) {
@@ -222,9 +230,40 @@ pub fn fill_cells(
             return;
         }
         let Some(plane) = planes.get_mut(g.owner as usize) else { return };
+        // A support point off the plane (an object's foot, a chair leg in the floor's Gaussian) would claim the
+        // plane's surface where the camera saw something else.
+        if !plane.is_on_plane(p.xyz, params) {
+            return;
+        }
         match plane.cell_of(p.xyz, params.g_p) {
             Some((a, b)) => plane.occupy(a, b),
             None => plane.clipped_points += 1,
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A floor 1 m below the camera at 3 m depth: normal −y.
+    fn floor() -> Plane {
+        Plane { centroid: [0.0, 1.0, 3.0], normal: [0.0, -1.0, 0.0], ..Plane::zeroed() }
+    }
+
+    #[test]
+    fn only_points_within_the_depth_tolerance_mark_plane_cells() {
+        let params = Params::default();
+        let plane = floor();
+        // At 3 m the tolerance is 3 σ(3 m) = 3 × (0.0012 + 0.0019 × 2.6²) = 4.2 cm.
+        let tolerance = params.depth_tolerance(3.0);
+        assert!((tolerance - 0.042).abs() < 1e-3, "{tolerance}");
+        assert!(plane.is_on_plane([0.3, 1.0 - 0.04, 3.0], &params), "4 cm above the floor at 3 m is noise");
+        assert!(plane.is_on_plane([0.3, 1.04, 3.0], &params), "and so is 4 cm below");
+        assert!(!plane.is_on_plane([0.3, 1.0 - 0.08, 3.0], &params), "8 cm above it is an object's foot");
+        // Near the camera the 2 cm floor of the tolerance rules: 2.5 cm off at 1 m is off the plane.
+        let near = Plane { centroid: [0.0, 0.5, 1.0], ..floor() };
+        assert!(near.is_on_plane([0.1, 0.5 - 0.019, 1.0], &params));
+        assert!(!near.is_on_plane([0.1, 0.5 - 0.025, 1.0], &params));
+    }
 }

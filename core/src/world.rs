@@ -139,6 +139,8 @@ pub struct WorldPlane {
     pub pending_len: u16,
     /// New cells not shown yet (bit indices into `cells`).
     pub pending: [u16; PENDING_CELLS],
+    /// Cells some frame has hit (bit indices as in `cells`): a cell is shown once a second frame hits it.
+    pub seen: [u8; WORLD_GRID_BYTES],
     /// Shown occupancy bitmap, row-major, cell (a, b) at bit a + b × [`WORLD_GRID`], a and b offset by half the
     /// grid.
     pub cells: [u8; WORLD_GRID_BYTES],
@@ -240,9 +242,9 @@ impl<const P: usize, const O: usize, const G: usize, const R: usize> WorldStorag
     pub const REMOVALS: usize = R;
 }
 
-/// World map for the `mcu` profile: 1 plane, 8 objects, 24 Gaussians (10 KiB: what the 512 KiB budget leaves
+/// World map for the `mcu` profile: 1 plane, 8 objects, 20 Gaussians (11.1 KiB: what the 512 KiB budget leaves
 /// beside the mapper and a 25 KiB stack; the firmware runs it on the cabinet frames).
-pub type McuWorld = WorldStorage<1, 8, 24, 16>;
+pub type McuWorld = WorldStorage<1, 8, 20, 16>;
 /// World map for the `host` profile: 32 planes, 128 objects, 4 096 Gaussians.
 pub type HostWorld = WorldStorage<32, 128, 4096, 1024>;
 
@@ -531,13 +533,19 @@ impl<'s> WorldMap<'s> {
                 f(inside.then(|| b as usize * WORLD_GRID + a as usize));
             })
         };
-        // New cells join the pending list (once each); a full list shows everything at once.
+        // New cells join the pending list (once each) when an earlier frame has hit them too: a cell hit by one
+        // frame alone is usually a boundary cell that frame's grid, drawn into the world grid, pushed past what
+        // was seen. A new plane shows its first frame's cells. A full list shows everything at once.
         let (mut clipped, mut overflow, mut reach) = (0u32, false, w.reach);
+        let first_view = w.occupied == 0 && w.pending_len == 0;
         for_each_cell(&mut |k| {
             let Some(k) = k else {
                 clipped += 1;
                 return;
             };
+            if !first_view && !bit(&w.seen, k) {
+                return;
+            }
             let n = w.pending_len as usize;
             if bit(&w.cells, k) || w.pending.get(..n).unwrap_or(&[]).contains(&(k as u16)) {
                 return;
@@ -574,7 +582,7 @@ impl<'s> WorldMap<'s> {
             w.pending_len = 0;
             if overflow {
                 for_each_cell(&mut |k| {
-                    if let Some(k) = k {
+                    if let Some(k) = k.filter(|&k| first_view || bit(&w.seen, k)) {
                         set_bit(&mut w.cells, k);
                     }
                 });
@@ -583,6 +591,11 @@ impl<'s> WorldMap<'s> {
             w.occupied = w.cells.iter().map(|b| b.count_ones()).sum();
             stats.planes_grown += grown as u32;
         }
+        for_each_cell(&mut |k| {
+            if let Some(k) = k {
+                set_bit(&mut w.seen, k);
+            }
+        });
         w.clipped_cells = w.clipped_cells.saturating_add(clipped);
         stats.cells_clipped += clipped;
     }
@@ -1218,16 +1231,19 @@ mod tests {
         let mut storage = bytemuck::zeroed_box::<Small>();
         let mut world = WorldMap::new(&mut storage);
         let (mut a, mut b) = ([0u8; 800], [0u8; 800]);
-        // Frame 0 sees columns 40..50; frame 1, from 0.25 m further along x, sees columns 35..50 of its own
-        // grid: world columns 40..50 again and 5 more beyond (0.25 m = 5 cells).
+        // Frame 0 sees columns 40..50; frames 1 and 2, from 0.25 m further along x, see columns 35..50 of their
+        // own grid: world columns 40..50 again and 5 more beyond (0.25 m = 5 cells).
         let p0 = floor(&mut a, 40, 50);
         let p1 = floor(&mut b, 35, 50);
         world.integrate(0, &identity(), &params, |f| f(&Primitive::Plane(p0))).unwrap();
         let stats = world.integrate(1, &moved(0.25), &params, |f| f(&Primitive::Plane(p1))).unwrap();
         assert_eq!((stats.planes_merged, stats.planes_created), (1, 0));
         assert_eq!(world.planes().len(), 1);
+        // The new cells are hit by one frame only: not shown, not even pending.
+        assert_eq!((world.planes()[0].occupied, world.planes()[0].pending_len), (100, 0), "after one sighting");
+        world.integrate(2, &moved(0.25), &params, |f| f(&Primitive::Plane(p1))).unwrap();
         let plane = world.planes()[0];
-        // 10 × 10 cells, then 5 × 10 more: 50 new cells are more than 15 % of 100, so they are shown at once.
+        // 10 × 10 cells, then 5 × 10 more seen twice: 50 new cells are more than 20 % of 100, shown at once.
         assert_eq!(plane.occupied, 150, "shown cells");
         assert_eq!(plane.pending_len, 0);
         // The shown plane is the floor: normal ±y, 1 m below the first camera.
@@ -1241,12 +1257,13 @@ mod tests {
             })
         });
         assert_eq!(samples, 150);
-        // A third view adding 5 cells (under 15 % of 150) keeps them pending: not shown, not sent.
+        // Two more views adding 5 cells (under 20 % of 150) keep them pending: not shown, not sent.
         let mut c = [0u8; 800];
         block(&mut c, (40, 45), (10, 11));
         let p2 = floor(&mut c, 40, 50);
         let before = bytes(&world);
-        world.integrate(2, &identity(), &params, |f| f(&Primitive::Plane(p2))).unwrap();
+        world.integrate(3, &identity(), &params, |f| f(&Primitive::Plane(p2))).unwrap();
+        world.integrate(4, &identity(), &params, |f| f(&Primitive::Plane(p2))).unwrap();
         assert_eq!((world.planes()[0].occupied, world.planes()[0].pending_len), (150, 5));
         // Header (magic, version, frame, record count: 5 bytes here) and CRC aside, the map is the same.
         let after = bytes(&world);
@@ -1259,7 +1276,7 @@ mod tests {
         let mut storage = bytemuck::zeroed_box::<Small>();
         let mut world = WorldMap::new(&mut storage);
         // Frame 0 sees a small patch (it sets the world grid); frame 1 a 1 m × 1 m square about the same centroid
-        // after the camera turned 30° about the floor's normal through it: every world cell well inside the
+        // after the camera turned 30° about the floor's normal through it, twice: every world cell well inside the
         // turned square (half a cell margin) is set.
         let (mut small, mut bits) = ([0u8; 800], [0u8; 800]);
         block(&mut small, (39, 41), (39, 41));
@@ -1272,6 +1289,8 @@ mod tests {
         let c = p.centroid;
         let pose = Pose { rotation: r, translation: linalg::sub(c, linalg::mat_vec(&r, c)) };
         world.integrate(1, &pose, &params, |f| f(&Primitive::Plane(p))).unwrap();
+        assert_eq!(world.planes()[0].occupied, 4, "cells seen once are not shown");
+        world.integrate(2, &pose, &params, |f| f(&Primitive::Plane(p))).unwrap();
         let w = world.planes()[0];
         assert_eq!(w.pending_len, 0);
         let half = (WORLD_GRID / 2) as f32;
