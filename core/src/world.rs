@@ -82,9 +82,13 @@ pub const EXPLAINED_M: f32 = 0.03;
 /// A frame plane joins a world plane only if its farthest cell lies within this many `world_plane_offset`s of
 /// it (centroid offset plus tilt times reach).
 pub const PLANE_BEND_OFFSETS: f32 = 3.0;
-/// A world object is shown once its superquadric was seen in this many frames (a fit that no later frame
-/// confirms stays out of the map, and leaves it after `track_max_missed` frames unseen).
+/// A world object is shown once this many sightings in a row gave fits that agree ([`AGREEMENT`]): a fit that no
+/// later frame confirms stays out of the map (and leaves it after `track_max_missed` frames unseen), and so does
+/// a track whose fits jump between neighbours or between slices of an object.
 pub const OBJECT_MIN_FRAMES: u16 = 3;
+/// Two fits of one object agree when their centres lie within this share of the largest half-axis (or
+/// [`PUBLISH_MOVE_M`]) and each sorted half-axis within this share of the larger.
+pub const AGREEMENT: f32 = 0.3;
 /// A world Gaussian is shown once this many frames saw it (a patch seen once, often a fragment that a later
 /// frame explains or merges differently, costs no radio bytes).
 pub const GAUSSIAN_MIN_FRAMES: u16 = 2;
@@ -164,7 +168,8 @@ pub struct WorldObject {
     pub score: f32,
     /// Frame it was last seen in.
     pub last_frame: u32,
-    /// Frames it was seen in (saturating); it is shown from [`OBJECT_MIN_FRAMES`] on.
+    /// Sightings (saturating); until it is shown, the sightings in a row whose fits agree with the one before
+    /// (a disagreeing fit starts the count again at 1). It is shown from [`OBJECT_MIN_FRAMES`] on.
     pub frames_seen: u16,
     /// CRC-32 of the record last sent in a delta.
     pub sent_crc: u32,
@@ -656,12 +661,13 @@ impl<'s> WorldMap<'s> {
             }
         };
         if let Some(o) = self.objects.get_mut(index) {
+            let agrees = agree(&o.sq, &sq);
             o.sq = sq;
             o.track = s.track;
             o.class = s.class;
             o.score = o.score.max(s.score);
             o.last_frame = frame;
-            o.frames_seen = o.frames_seen.saturating_add(1);
+            o.frames_seen = if o.is_confirmed() || agrees { o.frames_seen.saturating_add(1) } else { 1 };
             let shown = &o.shown.sq;
             let moved = linalg::norm(linalg::sub(shown.centre, sq.centre)) > PUBLISH_MOVE_M;
             let turned = linalg::rotation_angle_between(&shown.rotation, &sq.rotation) > PUBLISH_ANGLE_DEG.to_radians();
@@ -1020,6 +1026,20 @@ fn fill_holes(cells: &mut [u8; WORLD_GRID_BYTES]) {
             }
         }
     }
+}
+
+/// Whether two fits `a`, `b` of one object agree: centres within max([`PUBLISH_MOVE_M`], [`AGREEMENT`] × the
+/// largest half-axis of either) and the half-axes, sorted (a fit may order its axes differently), each within
+/// [`AGREEMENT`] of the larger.
+fn agree(a: &Superquadric, b: &Superquadric) -> bool {
+    let sorted = |s: Vec3| {
+        let mut s = s;
+        s.sort_unstable_by(|x, y| x.total_cmp(y));
+        s
+    };
+    let reach = (AGREEMENT * max3(a.scales).max(max3(b.scales))).max(PUBLISH_MOVE_M);
+    linalg::norm(linalg::sub(a.centre, b.centre)) <= reach
+        && sorted(a.scales).iter().zip(sorted(b.scales)).all(|(&x, y)| libm::fabsf(x - y) <= AGREEMENT * x.max(y))
 }
 
 /// Squared Frobenius norm of a symmetric matrix.
@@ -1463,6 +1483,36 @@ mod tests {
             world.integrate(frame, &identity(), &params, |_| {}).unwrap();
         }
         assert_eq!(world.objects().len(), 1);
+    }
+
+    #[test]
+    fn an_object_whose_fits_disagree_is_not_shown_until_three_in_a_row_agree() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        let shown = |w: &WorldMap<'_>| w.primitive_counts()[1];
+        // One track, six sightings: its fit flips between a 20 cm and a 40 cm long shape (a slice of the
+        // object, then all of it). Half-axes differ by 50 %: no two sightings in a row agree.
+        let long = |z: f32| MapSq {
+            sq: Superquadric { scales: [0.1, 0.1, 0.4], ..sq([0.0; 3], 1).sq },
+            ..sq([0.0, 0.0, z], 1)
+        };
+        for frame in 0..6u32 {
+            let fit = if frame % 2 == 0 { sq([0.0, 0.0, 2.0], 1) } else { long(2.0) };
+            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(fit))).unwrap();
+            assert_eq!(shown(&world), 0, "frame {frame}: fits that jump are not an object to show");
+        }
+        assert_eq!(world.objects().len(), 1, "one world object follows the track");
+        // Three agreeing sightings (the centre moves 3 cm, within 30 % of the 40 cm half-axis; the first of them
+        // agrees with nothing before it): shown.
+        for (k, frame) in (6..9u32).enumerate() {
+            let fit = long(2.0 + 0.03 * k as f32);
+            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(fit))).unwrap();
+        }
+        assert_eq!(shown(&world), 1);
+        // Once shown, it stays shown whatever its track's next fit: the map does not flicker.
+        world.integrate(9, &identity(), &params, |f| f(&Primitive::Sq(sq([0.0, 0.0, 2.0], 1)))).unwrap();
+        assert_eq!(shown(&world), 1);
     }
 
     #[test]
