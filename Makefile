@@ -74,7 +74,8 @@ budget:
 	$(CARGO) run --release -q -p m2smap -- budget
 
 ## The core in a Cortex-M7 image (mcu profile, 512 KiB RAM region) on 3 real cabinet frames under QEMU mps2-an500:
-## map bytes must equal the host's (CRC per frame), instructions per frame and stage are printed, and the counting
+## map bytes, world deltas and the geometric segmenter's masks must equal the host's (CRC per frame), instructions
+## per frame and stage (and of the segmenter) are printed, and the counting
 ## global allocator (embedded-alloc) must have seen 0 heap allocations in every frame's pipeline.
 ## The image logs through defmt over semihosting stdout (every line, the map CRC lines too: they are one short line
 ## per frame, not bulk bytes); the raw stream is kept in target/fw-run.defmt and decoded by firmware/defmt-decode
@@ -88,13 +89,13 @@ firmware:
 		arm-none-eabi-size -A $(FW_ELF) | awk -v reserve=$$reserve '$$1 == ".data" || $$1 == ".bss" { ram += $$2 } \
 		END { printf "RAM: .data + .bss %d bytes + %d stack reserve = %d of 524288 bytes (%.1f %%)\n", ram, reserve, ram + reserve, (ram + reserve) / 5242.88 }'
 	$(QEMU) -kernel $(FW_ELF) | tee target/fw-run.defmt | $(FW_DECODE) $(FW_ELF) | tee target/fw-run.txt
-	grep -E '^frame [0-9]+ (map|world delta) ' target/fw-run.txt | diff -u $(FW_FRAMES)/expected.txt -
+	grep -E '^frame [0-9]+ (map|world delta|segment [0-9]+ instances) ' target/fw-run.txt | diff -u $(FW_FRAMES)/expected.txt -
 	@reserve=$$((16#$$(arm-none-eabi-nm $(FW_ELF) | awk '$$3 == "_stack_reserve" { print $$1 }'))); \
 		hw=$$(sed -n 's/^stack high-water \([0-9]*\) bytes.*/\1/p' target/fw-run.txt); \
 		[ -n "$$hw" ] && [ "$$hw" -le "$$reserve" ] || { echo "firmware: FAILED: stack high-water $$hw bytes > the $$reserve-byte reserve"; exit 1; }
 	@grep -qx 'heap allocations during process: 0' target/fw-run.txt || \
 		{ echo "firmware: FAILED: the core allocated on the heap during process (or the count is missing)"; exit 1; }
-	@echo "firmware: the Cortex-M7 maps and world deltas equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"
+	@echo "firmware: the Cortex-M7 maps, world deltas and segmenter masks equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"
 
 ## `make firmware` when QEMU and the shared frames are here; under CI their absence is an error.
 firmware-check:

@@ -227,3 +227,48 @@ fn separates_close_range_objects_from_their_table() {
     assert!(value("adhesion_map") <= 0.7, "adhesion {:.2} per frame", value("adhesion_map"));
     assert!(value("r2g_rmse_m") <= 0.03, "R2G {:.3} m: something observed is not mapped", value("r2g_rmse_m"));
 }
+
+#[test]
+fn segmenting_between_frames_changes_no_map_and_gives_the_masks_mapping_uses() {
+    // Frames 0..3 of the tabletop: one mapper maps them (no masks); another segments each
+    // frame (`Mapper::segment`, as the firmware does after each map) between the same calls. The maps are the
+    // same bytes, and the masks equal those `process_segmented` makes of the same frame.
+    let scene = Scene::named("tabletop").unwrap();
+    let (mut plain_storage, mut busy_storage, mut seg_storage) = (
+        bytemuck::zeroed_box::<HostStorage>(),
+        bytemuck::zeroed_box::<HostStorage>(),
+        bytemuck::zeroed_box::<HostStorage>(),
+    );
+    let mut plain = Mapper::new(&mut *plain_storage, Params::default()).unwrap();
+    let mut busy = Mapper::new(&mut *busy_storage, Params::default()).unwrap();
+    let mut segmented = Mapper::new(&mut *seg_storage, Params::default()).unwrap();
+    let blank = Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] };
+    let map = |m: &Mapper<'_>| {
+        let mut buf = vec![0u8; 64 * 1024];
+        let n = m.encode_map(&mut buf).unwrap();
+        buf.truncate(n);
+        buf
+    };
+    for k in 0..3 {
+        let frame = scene.render(k, Some(5));
+        let view = frame.frame.view(&scene.camera);
+        plain.process(view, None).unwrap();
+        busy.process(view, None).unwrap();
+        let frames_before = busy.report().frame;
+        let (mut ids, mut instances) = (vec![0u16; view.pixels()], [blank; 16]);
+        let stats = busy.segment(view, &mut ids, &mut instances, 0).unwrap();
+        assert_eq!(busy.report().frame, frames_before, "frame {k}: segmenting is not a frame");
+        assert_eq!(map(&busy), map(&plain), "frame {k}: segmenting changed the map");
+        let (mut ids2, mut instances2) = (vec![0u16; view.pixels()], [blank; 16]);
+        let (_, n) = segmented.process_segmented(view, &mut ids2, &mut instances2, 0).unwrap();
+        assert!(n >= 2, "frame {k}: {n} instances");
+        assert_eq!((stats.instances as usize, &ids), (n, &ids2), "frame {k}: masks differ");
+        assert_eq!(&instances[..n], &instances2[..n]);
+    }
+    // A wrong-sized id image is an error that names the sizes, and changes nothing.
+    let frame = scene.render(3, Some(5));
+    let mut short = vec![0u16; 10];
+    let before = map(&busy);
+    assert!(busy.segment(frame.frame.view(&scene.camera), &mut short, &mut [blank; 4], 0).is_err());
+    assert_eq!(map(&busy), before);
+}

@@ -243,14 +243,7 @@ impl<'s> Mapper<'s> {
         instances: &mut [Instance],
         class: u16,
     ) -> Result<(FrameReport, usize), FrameError> {
-        self.check(frame, None)?;
-        if ids.len() != frame.pixels() {
-            return Err(FrameError::Masks(crate::error::MaskError::PixelLength {
-                expected: frame.pixels(),
-                found: ids.len(),
-            }));
-        }
-        let stats = segment::segment(&frame, self.scratch, &self.params, ids, instances, class);
+        let stats = self.segment(frame, ids, instances, class)?;
         let n = stats.instances as usize;
         let masks = MaskSet {
             width: frame.width,
@@ -269,6 +262,27 @@ impl<'s> Mapper<'s> {
         self.stage_separate(&checked);
         self.stage_superquadrics(&checked);
         Ok((*self.finish_frame(), n))
+    }
+
+    /// The geometric segmenter alone ([`crate::segment`]) on `frame`: writes the id image into `ids` (one per
+    /// pixel) and the instances (label `class`) into `instances`, with the mapper's per-frame scratch as its
+    /// working memory; the map, the tracks and the last report are unchanged. The first step of
+    /// [`Mapper::process_segmented`]; public for `m2smap segment` and the firmware's instruction count.
+    pub fn segment(
+        &mut self,
+        frame: Frame<'_>,
+        ids: &mut [u16],
+        instances: &mut [Instance],
+        class: u16,
+    ) -> Result<segment::SegmentStats, FrameError> {
+        self.check(frame, None)?;
+        if ids.len() != frame.pixels() {
+            return Err(FrameError::Masks(crate::error::MaskError::PixelLength {
+                expected: frame.pixels(),
+                found: ids.len(),
+            }));
+        }
+        Ok(segment::segment(&frame, self.scratch, &self.params, ids, instances, class))
     }
 
     /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks).

@@ -428,6 +428,10 @@ const MAX_BOUNDARIES: usize = 128;
 /// Least convex links along a boundary that makes a plane an object's face.
 const FACE_MIN_LINKS: u16 = 3;
 
+/// Instances a caller's buffer for one segmentation holds (the shell's and the firmware's): more qualifying
+/// components are counted in [`SegmentStats::truncated`].
+pub const SEGMENTER_INSTANCES: usize = 64;
+
 /// Counts of one segmentation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SegmentStats {

@@ -27,6 +27,7 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::debug;
 use defmt_semihosting as _;
 use embedded_alloc::LlffHeap;
+use m2smap_core::segment::SEGMENTER_INSTANCES;
 use m2smap_core::wire::{self, WireError};
 use m2smap_core::world::{McuWorld, WorldMap};
 use m2smap_core::{
@@ -55,6 +56,16 @@ mod frames {
 static mut STORAGE: MaybeUninit<McuStorage> = MaybeUninit::zeroed();
 /// The world map's pools (`McuWorld`), zeroed = empty, in `.bss` beside the mapper's.
 static mut WORLD: MaybeUninit<McuWorld> = MaybeUninit::zeroed();
+
+/// Pixels of an embedded frame.
+const PIXELS: usize = frames::WIDTH as usize * frames::HEIGHT as usize;
+/// The geometric segmenter's id image (one u16 per pixel, also its working memory) and instances: frame-sized
+/// output buffers in PSRAM beside the embedded frames (like the camera's frames, outside the 512 KiB budget).
+#[link_section = ".frames.segment"]
+static mut SEGMENT_IDS: [u16; PIXELS] = [0; PIXELS];
+#[link_section = ".frames.segment"]
+static mut SEGMENT_INSTANCES: [Instance; SEGMENTER_INSTANCES] =
+    [Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
 
 /// Heap bytes. The core is `no_std` without `alloc`; this heap makes that observable: anything linked into the
 /// image that allocates (the core, a dependency, a future change) goes through the counting allocator below and
@@ -244,6 +255,18 @@ fn log_frame(
     defmt::println!("frame {=usize} report {}", i, report);
 }
 
+/// [`Mapper::segment`] in a frame of its own: inlined into `main`, the segmenter's stack tables would stay
+/// reserved in `main`'s frame under every later stage (and overflow the stack reserve under the superquadric fit).
+#[inline(never)]
+fn run_segmenter(
+    mapper: &mut Mapper<'_>,
+    frame: Frame<'_>,
+    ids: &mut [u16],
+    instances: &mut [Instance],
+) -> Result<m2smap_core::segment::SegmentStats, FrameError> {
+    mapper.segment(frame, ids, instances, 0)
+}
+
 #[cold]
 #[inline(never)]
 fn frame_rejected(i: usize, e: FrameError) -> ! {
@@ -300,6 +323,9 @@ fn main() -> ! {
     // SAFETY: `main` runs once and is the only user of WORLD; all-zero bytes are a valid McuWorld.
     let world_storage: &'static mut McuWorld = unsafe { (*addr_of_mut!(WORLD)).assume_init_mut() };
     let mut world = WorldMap::new(world_storage);
+    // SAFETY: `main` runs once and is the only user of the segmenter's buffers.
+    let (segment_ids, segment_instances) =
+        unsafe { (&mut *addr_of_mut!(SEGMENT_IDS), &mut *addr_of_mut!(SEGMENT_INSTANCES)) };
     let mut scratch = [0u8; wire::MAX_PRIMITIVE_BYTES];
     let mut allocations_in_process = 0usize;
     for (i, f) in frames::FRAMES.iter().enumerate() {
@@ -383,6 +409,29 @@ fn main() -> ! {
             }
         }
         defmt::println!("frame {=usize} world instructions {=u64}", i, instructions);
+        // The geometric segmenter on the same frame (what `--segmenter geometric` runs before mapping), with the
+        // mapper's scratch: its instructions, and a digest of its id image and instances that must equal the
+        // host's (`m2smap::firmware::segment_digest`).
+        let allocs_before = ALLOCATOR.allocations();
+        let t0 = ticks();
+        let stats = match run_segmenter(&mut mapper, frame, segment_ids, segment_instances) {
+            Ok(s) => s,
+            Err(e) => frame_rejected(i, e),
+        };
+        let instructions = ((ticks() - t0) as f64 * per_tick) as u64;
+        allocations_in_process += ALLOCATOR.allocations() - allocs_before;
+        let found = segment_instances.get(..stats.instances as usize).unwrap_or(&[]);
+        let mut crc = wire::crc32_update(0xFFFF_FFFF, bytemuck::cast_slice::<u16, u8>(segment_ids));
+        for k in found {
+            crc = wire::crc32_update(crc, &k.id.to_le_bytes());
+            crc = wire::crc32_update(crc, &k.class.to_le_bytes());
+            crc = wire::crc32_update(crc, &k.score.to_bits().to_le_bytes());
+            for b in k.bbox {
+                crc = wire::crc32_update(crc, &b.to_le_bytes());
+            }
+        }
+        defmt::println!("frame {=usize} segment {=u32} instances crc {=u32:08x}", i, stats.instances, !crc);
+        defmt::println!("frame {=usize} segment instructions {=u64}", i, instructions);
     }
     defmt::println!("heap allocations during process: {=usize}", allocations_in_process);
     defmt::println!(

@@ -15,6 +15,7 @@ use m2smap_core::{Frame, Instance, Mapper, MaskPixels, MaskSet, McuStorage, Para
 
 use crate::dataset::Dataset;
 use crate::masks::{read_frame_masks, LabelTable};
+use crate::run::SEGMENTER_INSTANCES;
 
 /// Most instances per firmware frame.
 pub const MAX_FIRMWARE_INSTANCES: usize = 8;
@@ -94,6 +95,8 @@ pub fn host_digests(dataset: &Dataset, frames: &[FirmwareFrame]) -> Result<Vec<F
     let mut world_storage = bytemuck::zeroed_box::<m2smap_core::world::McuWorld>();
     let mut world = m2smap_core::world::WorldMap::new(&mut world_storage);
     let mut buf = vec![0u8; FIRMWARE_MAP_BYTES];
+    let mut ids = Vec::new();
+    let mut instances = vec![Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
     frames
         .iter()
         .enumerate()
@@ -117,7 +120,19 @@ pub fn host_digests(dataset: &Dataset, frames: &[FirmwareFrame]) -> Result<Vec<F
                 .map_err(|e| anyhow!("frame {i}: world map: {e}"))?;
             let d = world.encode_delta(&mut buf).map_err(|e| anyhow!("frame {i}: world delta: {e}"))?;
             let delta_crc = m2smap_core::wire::crc32(&buf[..d.saturating_sub(4)]);
-            Ok(FrameDigest { map_crc, map_bytes: n, delta_crc, delta_bytes: d })
+            // Then the geometric segmenter on the same frame, as the firmware runs it (after the world map).
+            ids.resize(frame.pixels(), 0);
+            let stats =
+                mapper.segment(frame, &mut ids, &mut instances, 0).map_err(|e| anyhow!("frame {i}: segmenter: {e}"))?;
+            let segment_crc = segment_digest(&ids, &instances[..stats.instances as usize]);
+            Ok(FrameDigest {
+                map_crc,
+                map_bytes: n,
+                delta_crc,
+                delta_bytes: d,
+                segment_instances: stats.instances,
+                segment_crc,
+            })
         })
         .collect()
 }
@@ -133,6 +148,23 @@ pub struct FrameDigest {
     pub delta_crc: u32,
     /// Bytes of that delta.
     pub delta_bytes: usize,
+    /// Instances the geometric segmenter found in the frame.
+    pub segment_instances: u32,
+    /// [`segment_digest`] of its id image and instances.
+    pub segment_crc: u32,
+}
+
+/// CRC-32 of a segmentation: the id image (little-endian u16 per pixel), then each instance's id, class, score
+/// bits and box (little-endian). The firmware computes the same.
+pub fn segment_digest(ids: &[u16], instances: &[Instance]) -> u32 {
+    let mut bytes: Vec<u8> = ids.iter().flat_map(|x| x.to_le_bytes()).collect();
+    for i in instances {
+        bytes.extend_from_slice(&i.id.to_le_bytes());
+        bytes.extend_from_slice(&i.class.to_le_bytes());
+        bytes.extend_from_slice(&i.score.to_bits().to_le_bytes());
+        i.bbox.iter().for_each(|b| bytes.extend_from_slice(&b.to_le_bytes()));
+    }
+    m2smap_core::wire::crc32(&bytes)
 }
 
 /// The firmware's map buffer, bytes (also the size the host uses, so an oversized map fails on both).
@@ -216,6 +248,7 @@ pub fn export(dataset: &Dataset, n: usize, out: &Path) -> Result<()> {
     for (i, d) in host_digests(dataset, &frames)?.into_iter().enumerate() {
         writeln!(expected, "frame {i} map {} bytes crc {:08x}", d.map_bytes, d.map_crc)?;
         writeln!(expected, "frame {i} world delta {} bytes crc {:08x}", d.delta_bytes, d.delta_crc)?;
+        writeln!(expected, "frame {i} segment {} instances crc {:08x}", d.segment_instances, d.segment_crc)?;
     }
     write("expected.txt", expected.as_bytes())?;
     Ok(())

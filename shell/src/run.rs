@@ -16,8 +16,7 @@ use crate::eval;
 use crate::faults::{self, Fault};
 use crate::masks::{mask_dir, read_frame_masks, FrameMasks, LabelTable, Pixels};
 
-/// Instance buffer of the geometric segmenter.
-pub const SEGMENTER_INSTANCES: usize = 64;
+pub use m2smap_core::segment::SEGMENTER_INSTANCES;
 
 /// Where a run's instance masks come from besides files.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
