@@ -193,3 +193,36 @@ fn full_pools_drop_and_count_instead_of_panicking() {
         assert_eq!(mapped + r.outlier_points + r.dropped_points, r.points, "every point is mapped or accounted for");
     }
 }
+
+#[test]
+fn a_full_voxel_pool_drops_the_farthest_points() {
+    use m2smap_core::mapper::VOXEL_RANGE_CUT;
+    use m2smap_core::{PoolId, Storage};
+    // The tabletop's frame 0 needs more voxels over the full range than this pool holds (measured below), and
+    // they fit over a nearer one: the frame is mapped over that range, whole, and the far points are the lost ones.
+    type Short = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }>;
+    let scene = Scene::named("tabletop").unwrap();
+    let frame = scene.render(0, Some(2));
+    let view = frame.frame.view(&scene.camera);
+    let params = Params::default();
+    let mut host = bytemuck::zeroed_box::<HostStorage>();
+    let full = *Mapper::new(&mut *host, params).unwrap().process(view, None).unwrap();
+    assert!(full.voxels > 2048, "the frame needs {} voxels", full.voxels);
+    assert_eq!(full.voxel_range_m, params.depth_max);
+    let mut storage = bytemuck::zeroed_box::<Short>();
+    let mut mapper = Mapper::new(&mut *storage, params).unwrap();
+    for _ in 0..2 {
+        let r = *mapper.process(view, None).unwrap();
+        let range = r.voxel_range_m;
+        assert!(range < params.depth_max && range >= params.depth_max * VOXEL_RANGE_CUT.powi(8), "range {range}");
+        // The full range's refused inserts are reported; nothing was refused over the range kept.
+        assert!(r.pool(PoolId::Voxels).overflow_events > 0 && r.voxels <= 2048);
+        assert_eq!(r.points, full.points, "the in-range points of the configured range");
+        let far = mapper.voxels().iter().map(|v| v.centroid(params.voxel_resolution)[2]).fold(0.0f32, f32::max);
+        assert!(far <= range, "a voxel at {far} m beyond the range {range} m");
+        // Every later stage saw the same range: each point is mapped, an outlier, or dropped (beyond it).
+        let mapped: u32 = mapper.gaussians().iter().map(|g| g.count).sum();
+        assert_eq!(mapped + r.outlier_points + r.dropped_points, r.points, "every point is accounted for");
+        assert_eq!(mapper.params().depth_max, params.depth_max, "the configured range is back after the frame");
+    }
+}

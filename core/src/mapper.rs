@@ -120,8 +120,11 @@ pub struct FrameReport {
     pub sq_jumps: u32,
     /// Points in outlier clusters (too small to map).
     pub outlier_points: u32,
-    /// Points lost to a full pool.
+    /// Points lost to a full pool (those beyond `voxel_range_m` included).
     pub dropped_points: u32,
+    /// Far end of the depth range this frame was mapped over, metres: `depth_max`, or nearer when the full
+    /// range's voxels did not fit the pool ([`VOXEL_RANGE_CUT`]).
+    pub voxel_range_m: f32,
     /// Use of every pool, in [`PoolId::ALL`] order.
     pub pools: [PoolUsage; PoolId::COUNT],
     /// Sum of the pools' overflow events.
@@ -136,9 +139,20 @@ impl FrameReport {
     }
 }
 
+/// Drop policy of a full voxel pool: the frame's voxels are built again over a depth range whose far end is this
+/// share nearer (from `depth_min`), at most [`VOXEL_RANGE_CUTS`] times, until they fit. The farthest points are
+/// the noisiest and the sparsest, so they are the ones lost; the pool's refused inserts of the full range stay
+/// counted as its overflow events. (Before, the points that came last in pixel order were lost: the bottom of
+/// the image, usually the nearest floor or table.)
+pub const VOXEL_RANGE_CUT: f32 = 0.95;
+/// Most nearer ranges a frame's voxels are built over ([`VOXEL_RANGE_CUT`]); the last one keeps what fits.
+pub const VOXEL_RANGE_CUTS: u32 = 8;
+
 /// The M2-SMap mapper over caller-owned storage.
 pub struct Mapper<'s> {
     params: Params,
+    /// The configured `depth_max`: `params.depth_max` is nearer during a frame whose voxels did not fit.
+    depth_max: f32,
     max_pixels: usize,
     voxels: Bounded<'s, Voxel>,
     slots: &'s mut [u16],
@@ -170,6 +184,7 @@ impl<'s> Mapper<'s> {
         let parts = storage.parts();
         Ok(Mapper {
             params,
+            depth_max: params.depth_max,
             max_pixels: P::MAX_PIXELS,
             voxels: Bounded::new(parts.voxels),
             slots: parts.slots,
@@ -288,12 +303,31 @@ impl<'s> Mapper<'s> {
     /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks).
     pub fn stage_voxels(&mut self, checked: &CheckedFrame<'_>) {
         self.report = FrameReport { frame: self.frames + 1, ..FrameReport::default() };
+        self.params.depth_max = self.depth_max;
         self.slotted = checked.masks.is_some() && self.params.mask_consistent();
         let voxel_masks = self.voxel_masks(checked);
-        let stats =
+        let mut stats =
             supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
+        // A full pool: the voxels again over nearer ranges ([`VOXEL_RANGE_CUT`]); every later stage of this frame
+        // sees the same range (`finish_frame` restores it), so a point beyond it belongs to no voxel anywhere.
+        let (in_range, refused, refused_slots) =
+            (stats.points, self.voxels.usage().overflow_events, stats.slot_overflows);
+        let mut cuts = 0;
+        while (self.voxels.usage().overflow_events > 0 || stats.slot_overflows > 0) && cuts < VOXEL_RANGE_CUTS {
+            cuts += 1;
+            let near = self.params.depth_min;
+            self.params.depth_max = near + (self.params.depth_max - near) * VOXEL_RANGE_CUT;
+            stats =
+                supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
+        }
+        if cuts > 0 {
+            self.voxels.add_overflows(refused);
+            stats.slot_overflows = stats.slot_overflows.saturating_add(refused_slots);
+            stats.dropped_points += in_range.saturating_sub(stats.points);
+        }
+        self.report.voxel_range_m = self.params.depth_max;
         supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.params.voxel_resolution);
-        self.report.points = stats.points;
+        self.report.points = in_range;
         self.report.dropped_points += stats.dropped_points;
         self.report.voxels = self.voxels.len() as u32;
         self.report.pools[1] =
@@ -729,6 +763,7 @@ impl<'s> Mapper<'s> {
     /// Closes the frame's accounting and returns its report.
     pub fn finish_frame(&mut self) -> &FrameReport {
         self.frames += 1;
+        self.params.depth_max = self.depth_max;
         self.report.gmms = self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)).count() as u32;
         let n = self.voxels.len();
         let slots = self.report.pools[1];

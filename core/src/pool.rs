@@ -135,6 +135,12 @@ impl<'a, T: Copy> Bounded<'a, T> {
         self.overflows = 0;
     }
 
+    /// Counts `n` overflow events that happened outside [`Bounded::push`]: the refused pushes of a pass that was
+    /// cleared and redone (the voxels of a frame mapped again over a nearer range).
+    pub fn add_overflows(&mut self, n: u32) {
+        self.overflows = self.overflows.saturating_add(n);
+    }
+
     /// Starts a new frame's accounting and keeps the elements (for a pool that lives across frames, such as the
     /// tracks): the peak restarts at the current length and the overflow count at 0, so a refused push is
     /// reported in the frame it happened and not again in every later one.

@@ -148,6 +148,9 @@ pub struct FrameRecord {
     pub outlier_points: u32,
     /// Points lost to full pools.
     pub dropped_points: u32,
+    /// Far end of the depth range the frame was mapped over, metres (nearer than `depth_max` when its voxels
+    /// did not fit the pool: the voxel pool's drop policy, `m2smap_core::mapper::VOXEL_RANGE_CUT`).
+    pub voxel_range_m: f64,
     /// Primitive counts.
     pub primitives: Primitives,
     /// Wire payload, bytes.
@@ -729,6 +732,7 @@ fn replay<P: Profile + Zeroable>(
                 residual_gaussians: report.residual_gaussians,
                 outlier_points: report.outlier_points,
                 dropped_points: report.dropped_points,
+                voxel_range_m: report.voxel_range_m as f64,
                 primitives: Primitives {
                     plane: Some(report.planes as f64),
                     sq: Some(sq.unwrap_or(0.0)),
