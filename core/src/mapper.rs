@@ -282,7 +282,7 @@ impl<'s> Mapper<'s> {
     /// The geometric segmenter alone ([`crate::segment`]) on `frame`: writes the id image into `ids` (one per
     /// pixel) and the instances (label `class`) into `instances`, with the mapper's per-frame scratch as its
     /// working memory; the map, the tracks and the last report are unchanged. The first step of
-    /// [`Mapper::process_segmented`]; public for `m2smap segment` and the firmware's instruction count.
+    /// [`Mapper::process_segmented`]; public for the firmware's instruction count and its host digest.
     pub fn segment(
         &mut self,
         frame: Frame<'_>,
