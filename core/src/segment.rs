@@ -484,7 +484,7 @@ pub fn segment(
     for (i, q) in normals.chunks_exact_mut(3).enumerate() {
         let normal = grid.surfel(i % grid.cols.max(1), i / grid.cols.max(1)).map_or([0.0; 3], |(_, nrm)| nrm);
         for (x, c) in q.iter_mut().zip(normal) {
-            *x = (libm::roundf(c * 32767.0) as i16) as u16;
+            *x = crate::supervoxel::quantise_unit(c) as u16;
         }
     }
     let grid = Grid { normals, ..grid };

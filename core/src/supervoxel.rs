@@ -414,9 +414,16 @@ pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], resolution: f32) {
     }
 }
 
+/// A unit-vector component `x` (clamped to [−1, 1]) in units of 1/32767, rounded half away from zero: the same
+/// result as `libm::roundf(x · 32767) as i16` (NaN gives 0), without its general path. Voxel normals and the
+/// segmenter's cell normals are stored this way.
 #[inline]
-fn quantise_unit(x: f32) -> i16 {
-    libm::roundf(x.clamp(-1.0, 1.0) * 32767.0) as i16
+pub fn quantise_unit(x: f32) -> i16 {
+    let y = x.clamp(-1.0, 1.0) * 32767.0;
+    // |y| ≤ 32767: the cast truncates towards zero, and y minus its integer part is exact.
+    let t = y as i32;
+    let frac = y - t as f32;
+    (t + i32::from(frac >= 0.5) - i32::from(frac <= -0.5)) as i16
 }
 
 /// Counts of the supervoxel stage.
@@ -682,6 +689,25 @@ fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn quantise_unit_rounds_exactly_as_roundf() {
+        let reference = |x: f32| libm::roundf(x.clamp(-1.0, 1.0) * 32767.0) as i16;
+        // Every halfway point and its neighbours one ulp either side, then a dense sweep and the edge cases.
+        for k in -32768i32..=32767 {
+            let half = (k as f32 + 0.5) / 32767.0;
+            for x in [half, f32::from_bits(half.to_bits() + 1), f32::from_bits(half.to_bits().wrapping_sub(1))] {
+                assert_eq!(quantise_unit(x), reference(x), "x = {x:e}");
+            }
+        }
+        for i in 0..=2_000_000u32 {
+            let x = -1.1 + 2.2 * i as f32 / 2_000_000.0;
+            assert_eq!(quantise_unit(x), reference(x), "x = {x:e}");
+        }
+        for x in [0.0, -0.0, 1.0, -1.0, 2.0, -7.5, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e-40] {
+            assert_eq!(quantise_unit(x), reference(x), "x = {x:e}");
+        }
+    }
 
     #[test]
     fn packed_colour_sums_are_exact_up_to_the_largest_voxel() {
