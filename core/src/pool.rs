@@ -186,6 +186,18 @@ impl<'a, T: Copy> Bounded<'a, T> {
     }
 }
 
+/// The index of the element of `items` unseen for the most frames at `frame` (`last_frame` gives the frame each
+/// was last seen in), the lowest index on ties; an element seen in `frame` itself is never picked, so `None` when
+/// every element was. The drop policy of a full pool that lives across frames (tracks, world objects).
+pub fn stalest<T>(items: &[T], frame: u32, last_frame: impl Fn(&T) -> u32) -> Option<usize> {
+    items
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| last_frame(t) != frame)
+        .max_by_key(|&(i, t)| (frame.wrapping_sub(last_frame(t)), core::cmp::Reverse(i)))
+        .map(|(i, _)| i)
+}
+
 /// Bucket of a 32-bit key among `slots`: a cheap multiplicative hash that keeps neighbouring voxel keys in
 /// nearby slots (measured: a full-avalanche mix here is 10 % slower overall from lost cache locality).
 #[inline]

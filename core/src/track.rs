@@ -16,7 +16,7 @@ use bytemuck::Zeroable;
 
 use crate::linalg::{self, Mat3, Vec3};
 use crate::params::Params;
-use crate::pool::Bounded;
+use crate::pool::{self, Bounded};
 use crate::superquadric::{Superquadric, EPS_RANGE, MIN_SCALE};
 
 /// One superquadric track.
@@ -329,14 +329,7 @@ impl<'a> Tracker<'a> {
         if index.is_none() {
             // The pool is full (counted as its overflow): the track unseen for the most frames gives way, the
             // lowest slot on ties; a track updated in this frame never does (then the new one is refused).
-            let stalest = self
-                .tracks
-                .as_slice()
-                .iter()
-                .enumerate()
-                .filter(|(_, t)| t.last_frame != frame)
-                .max_by_key(|&(i, t)| (frame.wrapping_sub(t.last_frame), core::cmp::Reverse(i)))
-                .map(|(i, _)| i);
+            let stalest = pool::stalest(self.tracks.as_slice(), frame, |t| t.last_frame);
             if let Some(slot) = stalest.and_then(|i| self.tracks.get_mut(i)) {
                 *slot = track;
                 index = stalest;

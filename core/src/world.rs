@@ -626,15 +626,9 @@ impl<'s> WorldMap<'s> {
             }
             None => {
                 if self.objects.len() == self.objects.usage().capacity {
-                    // Full: evict the object unseen longest, unless every object was seen this frame.
-                    let victim = self
-                        .objects
-                        .as_slice()
-                        .iter()
-                        .enumerate()
-                        .filter(|(_, o)| o.last_frame != frame)
-                        .min_by_key(|(_, o)| (o.last_frame, o.id))
-                        .map(|(i, _)| i);
+                    // Full: evict the object unseen longest (the lowest index, which is the lowest id: objects
+                    // stay in creation order), unless every object was seen this frame.
+                    let victim = crate::pool::stalest(self.objects.as_slice(), frame, |o| o.last_frame);
                     match victim {
                         Some(v) if self.note_removal(KIND_SQ, v) => {
                             remove_at(&mut self.objects, v);
