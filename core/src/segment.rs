@@ -432,6 +432,24 @@ const FACE_MIN_LINKS: u16 = 3;
 /// components are counted in [`SegmentStats::truncated`].
 pub const SEGMENTER_INSTANCES: usize = 64;
 
+/// CRC-32 of a segmentation: the id image (little-endian u16 per pixel), then each instance's id, class, score
+/// bits and box (little-endian). The host and the firmware compare segmentations by it.
+pub fn digest(ids: &[u16], instances: &[Instance]) -> u32 {
+    let mut crc = 0xFFFF_FFFF;
+    for id in ids {
+        crc = crate::wire::crc32_update(crc, &id.to_le_bytes());
+    }
+    for k in instances {
+        crc = crate::wire::crc32_update(crc, &k.id.to_le_bytes());
+        crc = crate::wire::crc32_update(crc, &k.class.to_le_bytes());
+        crc = crate::wire::crc32_update(crc, &k.score.to_bits().to_le_bytes());
+        for b in k.bbox {
+            crc = crate::wire::crc32_update(crc, &b.to_le_bytes());
+        }
+    }
+    !crc
+}
+
 /// Counts of one segmentation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SegmentStats {

@@ -411,7 +411,7 @@ fn main() -> ! {
         defmt::println!("frame {=usize} world instructions {=u64}", i, instructions);
         // The geometric segmenter on the same frame (what `--segmenter geometric` runs before mapping), with the
         // mapper's scratch: its instructions, and a digest of its id image and instances that must equal the
-        // host's (`m2smap::firmware::segment_digest`).
+        // host's ([`m2smap_core::segment::digest`]).
         let allocs_before = ALLOCATOR.allocations();
         let t0 = ticks();
         let stats = match run_segmenter(&mut mapper, frame, segment_ids, segment_instances) {
@@ -421,16 +421,8 @@ fn main() -> ! {
         let instructions = ((ticks() - t0) as f64 * per_tick) as u64;
         allocations_in_process += ALLOCATOR.allocations() - allocs_before;
         let found = segment_instances.get(..stats.instances as usize).unwrap_or(&[]);
-        let mut crc = wire::crc32_update(0xFFFF_FFFF, bytemuck::cast_slice::<u16, u8>(segment_ids));
-        for k in found {
-            crc = wire::crc32_update(crc, &k.id.to_le_bytes());
-            crc = wire::crc32_update(crc, &k.class.to_le_bytes());
-            crc = wire::crc32_update(crc, &k.score.to_bits().to_le_bytes());
-            for b in k.bbox {
-                crc = wire::crc32_update(crc, &b.to_le_bytes());
-            }
-        }
-        defmt::println!("frame {=usize} segment {=u32} instances crc {=u32:08x}", i, stats.instances, !crc);
+        let crc = m2smap_core::segment::digest(segment_ids, found);
+        defmt::println!("frame {=usize} segment {=u32} instances crc {=u32:08x}", i, stats.instances, crc);
         defmt::println!("frame {=usize} segment instructions {=u64}", i, instructions);
     }
     defmt::println!("heap allocations during process: {=usize}", allocations_in_process);

@@ -124,7 +124,7 @@ pub fn host_digests(dataset: &Dataset, frames: &[FirmwareFrame]) -> Result<Vec<F
             ids.resize(frame.pixels(), 0);
             let stats =
                 mapper.segment(frame, &mut ids, &mut instances, 0).map_err(|e| anyhow!("frame {i}: segmenter: {e}"))?;
-            let segment_crc = segment_digest(&ids, &instances[..stats.instances as usize]);
+            let segment_crc = m2smap_core::segment::digest(&ids, &instances[..stats.instances as usize]);
             Ok(FrameDigest {
                 map_crc,
                 map_bytes: n,
@@ -150,21 +150,8 @@ pub struct FrameDigest {
     pub delta_bytes: usize,
     /// Instances the geometric segmenter found in the frame.
     pub segment_instances: u32,
-    /// [`segment_digest`] of its id image and instances.
+    /// [`m2smap_core::segment::digest`] of its id image and instances.
     pub segment_crc: u32,
-}
-
-/// CRC-32 of a segmentation: the id image (little-endian u16 per pixel), then each instance's id, class, score
-/// bits and box (little-endian). The firmware computes the same.
-pub fn segment_digest(ids: &[u16], instances: &[Instance]) -> u32 {
-    let mut bytes: Vec<u8> = ids.iter().flat_map(|x| x.to_le_bytes()).collect();
-    for i in instances {
-        bytes.extend_from_slice(&i.id.to_le_bytes());
-        bytes.extend_from_slice(&i.class.to_le_bytes());
-        bytes.extend_from_slice(&i.score.to_bits().to_le_bytes());
-        i.bbox.iter().for_each(|b| bytes.extend_from_slice(&b.to_le_bytes()));
-    }
-    m2smap_core::wire::crc32(&bytes)
 }
 
 /// The firmware's map buffer, bytes (also the size the host uses, so an oversized map fails on both).
