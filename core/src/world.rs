@@ -596,6 +596,8 @@ impl<'s> WorldMap<'s> {
             w.occupied = w.cells.iter().map(|b| b.count_ones()).sum();
             stats.planes_grown += grown as u32;
         }
+        // Only now is this frame's hit recorded: marked in the first pass, two frame cells drawn into one world
+        // cell would count as two frames.
         for_each_cell(&mut |k| {
             if let Some(k) = k {
                 set_bit(&mut w.seen, k);
