@@ -480,6 +480,15 @@ fn cabinet_floor_is_a_plane_and_full_fusion_never_glues_the_cabinet() {
     assert!(pmsao["n_adh"].as_f64().unwrap() > 0.0, "pmsao glues the cabinet somewhere");
     assert!(frames.iter().all(|f| f["instances"] == 1), "every frame has its cabinet mask");
     assert!(frames.iter().all(|f| f["objects"].as_u64().unwrap() == 1), "the cabinet is one object in every frame");
+    // Where the mask bleeds past the cabinet onto what stands behind it, that part is detached (kept as
+    // residual Gaussians), and the cabinet is still a superquadric there.
+    let bleeding: Vec<_> = frames.iter().filter(|f| f["detached_gaussians"].as_u64().unwrap() > 0).collect();
+    println!("detached parts on {} frames", bleeding.len());
+    assert!(!bleeding.is_empty(), "some cabinet masks bleed onto the background (e.g. frame 45)");
+    assert!(
+        bleeding.iter().all(|f| f["primitives"]["sq"].as_f64() == Some(1.0)),
+        "a superquadric where the mask bleeds"
+    );
     // The floor: a plane whose normal is the world's vertical (TUM's motion-capture frame has z up).
     let d = Dataset::open(&data, None).unwrap();
     let mut storage = bytemuck::zeroed_box::<m2smap_core::HostStorage>();
@@ -510,10 +519,14 @@ fn cabinet_is_one_tracked_superquadric_with_stable_size() {
     };
     let (full, wsqa) = (run("full"), run("wsqa"));
     let frames_with_sq = full["frames_with_sq"].as_f64().unwrap();
-    assert!(frames_with_sq >= 0.8, "the cabinet is an accepted superquadric on only {frames_with_sq:.2} of the frames");
+    assert!(
+        frames_with_sq >= 0.95,
+        "the cabinet is an accepted superquadric on only {frames_with_sq:.2} of the frames"
+    );
     assert_eq!(full["tracks_started"], 1, "one track spans the sequence");
     let (j_full, j_wsqa) = (full["j_sq_deg"].as_f64().unwrap(), wsqa["j_sq_deg"].as_f64().unwrap());
     println!("J_sq full {j_full:.2} deg, wsqa {j_wsqa:.2} deg ({:.0} % lower)", 100.0 * (1.0 - j_full / j_wsqa));
+    assert!(j_full <= 1.0, "J_sq of the cabinet {j_full:.2} deg");
     assert!(j_full <= 0.4 * j_wsqa, "alignment must cut J_sq by at least 60 %: {j_full:.2} vs {j_wsqa:.2}");
     assert!(full["payload_bytes"].as_f64().unwrap() > 0.0);
 

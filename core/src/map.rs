@@ -204,15 +204,18 @@ impl MapSq {
     /// Surface points about [`SQ_SAMPLE_SPACING`] apart, kept where the outward normal faces the camera at the
     /// origin (a superquadric with ε ≤ 2 is convex: this is its visible side). The grid is that of
     /// [`MapSq::for_each_surface_sample`].
-    pub fn for_each_sample(&self, f: impl FnMut(Vec3)) {
-        self.for_each_sample_spaced(SQ_SAMPLE_SPACING, f)
+    pub fn for_each_sample(&self, mut f: impl FnMut(Vec3)) {
+        self.for_each_sample_spaced(SQ_SAMPLE_SPACING, |p, _| f(p))
     }
 
-    /// [`MapSq::for_each_sample`] with grid points about `spacing` metres apart (at most 64 per face side).
-    pub fn for_each_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3)) {
+    /// [`MapSq::for_each_sample`] with grid points about `spacing` metres apart (at most 64 per face side):
+    /// `f(p, cos)` with the camera-frame point p and the cosine (0, 1] of the angle between its outward normal
+    /// and the direction back to the camera (1 for a face seen head-on, near 0 at grazing view).
+    pub fn for_each_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3, f32)) {
         self.for_each_grid_point(spacing, |l, p| {
-            if linalg::dot(self.sq.normal_at_local(l), p) < 0.0 {
-                f(p);
+            let facing = -linalg::dot(self.sq.normal_at_local(l), p);
+            if facing > 0.0 {
+                f(p, facing / linalg::norm(p).max(f32::MIN_POSITIVE));
             }
         });
     }

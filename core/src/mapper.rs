@@ -72,6 +72,9 @@ pub struct FrameReport {
     pub annotated: u32,
     /// Gaussians cut along a mask boundary before annotation.
     pub mask_cuts: u32,
+    /// Object Gaussians detached as residual Gaussians: parts of an instance that its largest part does not
+    /// reach ([`objects::detach_stray_parts`]).
+    pub detached_gaussians: u32,
     /// Fused clusters.
     pub clusters: u32,
     /// R_c = |C_g| / |fused clusters|.
@@ -517,13 +520,16 @@ impl<'s> Mapper<'s> {
             &params,
         );
         let by_cluster = params.variant.geometric_objects();
-        objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects, |g| {
-            if by_cluster {
-                g.cluster
-            } else {
-                g.instance
+        let key = |g: &Gaussian| if by_cluster { g.cluster } else { g.instance };
+        objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects, key);
+        if params.variant.extensions() {
+            let n_objects = self.objects.len();
+            self.report.detached_gaussians =
+                objects::detach_stray_parts(self.gaussians.as_mut_slice(), n_objects, self.scratch, &params);
+            if self.report.detached_gaussians > 0 {
+                objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects, key);
             }
-        });
+        }
         let count = |role| self.gaussians.as_slice().iter().filter(|g| g.role == role).count() as u32;
         self.report.plane_gaussians = count(ROLE_PLANE);
         self.report.object_gaussians = count(ROLE_OBJECT);

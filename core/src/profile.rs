@@ -21,7 +21,8 @@ pub const SPLIT_STACK: usize = 64;
 
 /// Storage of every pool of the mapper.
 ///
-/// - `V`: voxels (≤ 65 533, voxel indices are `u16`), also the length of the per-voxel scratch;
+/// - `V`: voxels (≤ 65 533, voxel indices are `u16`), also the length of the per-voxel scratch (at least 2 × `G`:
+///   [`crate::objects::detach_stray_parts`] keeps two entries per Gaussian there);
 /// - `H`: voxel hash slots (about 2 × `V` keeps linear probing short);
 /// - `C`: seed cells; `S`: supervoxels; `G`: Gaussians;
 /// - `M`: mask-hit counters (a hash table: about 2 × the annotated Gaussians); `L`: planes; `O`: objects;
@@ -166,7 +167,7 @@ impl<
             && O < 255
             && Q >= crate::superquadric::MAX_SAMPLES
             && H >= V
-            && V >= G
+            && V >= 2 * G
     );
 
     /// Bytes of the storage itself.

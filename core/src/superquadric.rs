@@ -1381,7 +1381,7 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
     let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0 };
     let (w, h) = (frame.width as i32, frame.height as i32);
     let (lo, hi) = frame.raw_range(params);
-    let judge = |p: Vec3| -> Seen {
+    let judge = |p: Vec3, facing: f32| -> Seen {
         let Some([u, v]) = frame.intrinsics.project(p) else { return Seen::Outside };
         let (u, v) = (linalg::floor_i32(u + 0.5), linalg::floor_i32(v + 0.5));
         if u < 0 || v < 0 || u >= w || v >= h {
@@ -1396,6 +1396,11 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
         let margin = |z: f32| params.depth_tolerance(z);
         let (near, far) = (frame.metres(nearest), frame.metres(farthest));
         if p[2] < near - margin(near) {
+            // A face seen nearly edge-on is not judged: its depth changes by decimetres across the centimetre
+            // its position is uncertain by, and the sensor barely sees it.
+            if facing < GRAZING_COS {
+                return Seen::Unknown;
+            }
             Seen::Free(u as f32, v as f32, near - margin(near))
         } else if p[2] > far + margin(far) {
             Seen::Hidden
@@ -1409,7 +1414,7 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
     let stride = (grid / 2).div_ceil(out.len().max(1)).max(1);
     let mut view = FrontView::default();
     let mut slots = out.iter_mut();
-    shape.for_each_sample_spaced(spacing, |p| match judge(p) {
+    shape.for_each_sample_spaced(spacing, |p, facing| match judge(p, facing) {
         Seen::Outside => view.outside += 1,
         Seen::Unknown => {}
         Seen::Hidden => {
@@ -1448,6 +1453,9 @@ fn free_probe_depth(sq: &Superquadric, p: Vec3, until: f32) -> f32 {
     }
     (p[2] + (0.5 * inside * ray[2]).max(0.01)).min(until)
 }
+
+/// Cosine of the viewing angle below which [`front_view`] does not count a sample in free space (84°).
+const GRAZING_COS: f32 = 0.1;
 
 /// Bisection steps of [`free_probe_depth`] (the chord to 1/1024 of the shape's diagonal).
 const CHORD_STEPS: usize = 10;
@@ -1722,5 +1730,81 @@ mod gradient_tests {
                 assert!((sq.lowest_along(dir) + sq.support(linalg::scale(dir, -1.0))).abs() < 1e-6);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod front_view_tests {
+    extern crate std;
+
+    use super::*;
+    use crate::frame::Intrinsics;
+    use std::vec::Vec;
+
+    const W: usize = 320;
+    const H: usize = 240;
+    const INTRINSICS: Intrinsics = Intrinsics { fx: 480.0, fy: 480.0, cx: 160.0, cy: 120.0 };
+
+    /// Depth (raw, 1 mm units) of a wall at 2 m with an axis-aligned box in front of it, `lo`..`hi` metres.
+    fn scene(lo: Vec3, hi: Vec3) -> Vec<u16> {
+        let mut depth = std::vec![2000u16; W * H];
+        for (i, d) in depth.iter_mut().enumerate() {
+            let ray = [
+                ((i % W) as f32 - INTRINSICS.cx) / INTRINSICS.fx,
+                ((i / W) as f32 - INTRINSICS.cy) / INTRINSICS.fy,
+                1.0,
+            ];
+            // Slab test of the ray p = z · ray against the box.
+            let (mut near, mut far) = (0.0f32, f32::MAX);
+            for k in 0..3 {
+                let (a, b) = (lo[k] / ray[k], hi[k] / ray[k]);
+                near = near.max(a.min(b));
+                far = far.min(a.max(b));
+            }
+            if near <= far {
+                *d = (near * 1000.0).round() as u16;
+            }
+        }
+        depth
+    }
+
+    fn box_sq(lo: Vec3, hi: Vec3) -> Superquadric {
+        Superquadric {
+            scales: core::array::from_fn(|k| 0.5 * (hi[k] - lo[k])),
+            eps: [0.1, 0.1],
+            centre: core::array::from_fn(|k| 0.5 * (hi[k] + lo[k])),
+            rotation: linalg::IDENTITY,
+        }
+    }
+
+    #[test]
+    fn a_face_seen_edge_on_is_not_judged_but_a_face_in_front_of_the_surface_is() {
+        // A 20 cm box at 1.4–1.6 m whose left face (x = 5 cm) the camera sees at 88°.
+        let (lo, hi) = ([0.05, -0.1, 1.4], [0.25, 0.1, 1.6]);
+        let depth = scene(lo, hi);
+        let frame = Frame {
+            width: W as u16,
+            height: H as u16,
+            depth: &depth,
+            depth_scale: 1000.0,
+            colour: &[],
+            intrinsics: INTRINSICS,
+            pose: None,
+        };
+        let params = Params::default();
+        let view = |lo: Vec3, hi: Vec3| front_view(&box_sq(lo, hi), &frame, &params, &mut []);
+        let truth = view(lo, hi);
+        assert_eq!(truth.free, 0, "{truth:?}");
+        assert!(truth.with_depth > 20, "{truth:?}");
+        // The same box 1.5 cm wider to the left: its left face lands on the wall 40 cm behind (4–5 px beside the
+        // silhouette), but that face is seen edge-on, where 1.5 cm across is 45 cm in depth.
+        let wider = view([0.035, -0.1, 1.4], hi);
+        assert_eq!(wider.free, 0, "{wider:?}");
+        // Grown 5 cm towards the camera: its front face (seen head-on, half of the samples) stands in free space.
+        let nearer = view([0.05, -0.1, 1.35], hi);
+        assert!(nearer.free >= 20 && 2 * nearer.free >= nearer.with_depth, "{nearer:?}");
+        // 5 cm wider to the left: the front face's samples beyond the silhouette are in free space.
+        let much_wider = view([0.0, -0.1, 1.4], hi);
+        assert!(much_wider.free > 0, "{much_wider:?}");
     }
 }

@@ -73,6 +73,8 @@ pub const PUBLISH_SHAPE_CHANGE: f32 = 0.2;
 /// A shown Gaussian takes its accumulated covariance once it changes by more than this fraction (Frobenius
 /// norm), or its support doubles.
 pub const PUBLISH_GMM_SHAPE_CHANGE: f32 = 0.4;
+/// Sightings a world object's centre is averaged over (a running mean, then a moving one with this weight).
+pub const OBJECT_CENTRE_FRAMES: u16 = 8;
 /// New cells of a world plane are shown once they number more than this share of its shown cells (or the
 /// pending list is full).
 pub const PUBLISH_CELL_SHARE: f32 = 0.2;
@@ -658,6 +660,13 @@ impl<'s> WorldMap<'s> {
         };
         if let Some(o) = self.objects.get_mut(index) {
             let agrees = agree(&o.sq, &sq);
+            // The centre is the mean over the sightings in a row that agree and come from one track (at most the
+            // last `OBJECT_CENTRE_FRAMES`): a static object's fits scatter by a centimetre or two from frame to
+            // frame. A new track starts a new mean (the old one may have followed another view of it).
+            let n = if agrees && o.track == s.track { o.frames_seen.min(OBJECT_CENTRE_FRAMES - 1) } else { 0 };
+            let k = 1.0 / (n + 1) as f32;
+            let centre = linalg::add(o.sq.centre, linalg::scale(linalg::sub(sq.centre, o.sq.centre), k));
+            let sq = Superquadric { centre, ..sq };
             o.sq = sq;
             o.track = s.track;
             o.class = s.class;
@@ -1509,6 +1518,34 @@ mod tests {
         // Once shown, it stays shown whatever its track's next fit: the map does not flicker.
         world.integrate(9, &identity(), &params, |f| f(&Primitive::Sq(sq([0.0, 0.0, 2.0], 1)))).unwrap();
         assert_eq!(shown(&world), 1);
+    }
+
+    #[test]
+    fn a_static_object_shows_the_mean_of_its_scattered_fits_and_is_resent_rarely() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        // One static object at z = 2 m whose fits scatter by ±2.5 cm along x (more than the 2 cm publish step
+        // from one fit to the next): 20 sightings.
+        let mut resent = 0;
+        for frame in 0..20u32 {
+            let x = if frame % 2 == 0 { 0.025 } else { -0.025 };
+            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(sq([x, 0.0, 2.0], 1)))).unwrap();
+            let d = delta(&mut world);
+            let mut sq_records = 0;
+            wire::decode_delta(&d, |c| {
+                if matches!(c, wire::DeltaChange::Upsert(r) if r.kind == KIND_SQ) {
+                    sq_records += 1;
+                }
+            })
+            .unwrap();
+            resent += sq_records;
+        }
+        let shown = world.objects()[0].shown.sq.centre;
+        assert!(shown[0].abs() <= 0.005, "shown centre {shown:?}: the mean of the fits is x = 0");
+        // Shown once confirmed, then re-sent only while the mean settles (the latest fit would be re-sent in
+        // every frame: each is 5 cm from the one before).
+        assert!(resent <= 3, "{resent} superquadric records");
     }
 
     #[test]

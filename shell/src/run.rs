@@ -130,6 +130,9 @@ pub struct FrameRecord {
     pub object_gaussians: u32,
     /// Residual Gaussians.
     pub residual_gaussians: u32,
+    /// Object Gaussians detached from their instance as residual Gaussians (a part its largest part does not
+    /// reach: core `objects::detach_stray_parts`).
+    pub detached_gaussians: u32,
     /// Objects whose superquadric fit was rejected.
     pub sq_rejected: u32,
     /// Objects without a track whose cold search was skipped: refused in the previous frame (core `Refusal`).
@@ -739,6 +742,7 @@ fn replay<P: Profile + Zeroable>(
                     gmm: Some(gmm),
                     total: Some(report.planes as f64 + sq.unwrap_or(0.0) + gmm),
                 },
+                detached_gaussians: report.detached_gaussians,
                 sq_rejected: report.sq_rejected,
                 sq_skipped: report.sq_skipped,
                 sq_held: report.sq_held,
