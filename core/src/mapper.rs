@@ -555,7 +555,7 @@ impl<'s> Mapper<'s> {
         let mut first = 0;
         while first < n_objects {
             let last = (first + per_pass).min(n_objects);
-            let mut seen = [0u32; MAX_OBJECTS_PER_PASS];
+            let mut phase = [0u32; MAX_OBJECTS_PER_PASS];
             let mut taken = [0usize; MAX_OBJECTS_PER_PASS];
             let objects = self.objects.as_slice();
             let gaussians = self.gaussians.as_slice();
@@ -567,20 +567,23 @@ impl<'s> Mapper<'s> {
                 if g.role != ROLE_OBJECT || k < first || k >= last || !eligible(k) {
                     return;
                 }
-                let (Some(o), Some(c), Some(t)) = (objects.get(k), seen.get_mut(k - first), taken.get_mut(k - first))
+                let (Some(o), Some(c), Some(t)) = (objects.get(k), phase.get_mut(k - first), taken.get_mut(k - first))
                 else {
                     return;
                 };
-                // Evenly spaced over the object's points in pixel order: exactly min(samples, N) of them.
+                // Evenly spaced over the object's points in pixel order: exactly min(samples, N) of them, the c-th
+                // point taken when ⌊(c + 1)·s / N⌋ > ⌊c·s / N⌋. `c` holds the phase (c·s) mod N, so the test is
+                // phase + s ≥ N, without a division (a library call on the Cortex-M7).
                 let n = o.points as u64;
                 let s = (samples as u64).min(n);
-                if ((*c as u64 + 1) * s) / n > (*c as u64 * s) / n {
+                let next = *c as u64 + s;
+                if next >= n {
                     if let Some(slot) = sq_points.get_mut((k - first) * samples + *t) {
                         *slot = p.xyz;
                         *t += 1;
                     }
                 }
-                *c += 1;
+                *c = (if next >= n { next - n } else { next }) as u32;
             };
             // The point pass samples for eligible objects only, over the pixels their points came from (each
             // object's pixel box holds all of its points): skipped when there are none.
