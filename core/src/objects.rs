@@ -104,7 +104,7 @@ pub fn part_gap(a: &Gaussian, b: &Gaussian, params: &Params) -> f32 {
 
 /// Keeps, of every object grouped by [`group_objects`], only its largest part: its Gaussians are joined when
 /// their point boxes are at most [`part_gap`] apart, and every part but the one with the most points becomes
-/// residual Gaussians (unlabelled: role residual, instance, class and score 0). A solid object is one
+/// residual Gaussians (unlabelled: role residual, owner, instance, class and score 0, as the residual set's). A solid object is one
 /// connected part; a second part is what an instance mask lent it across a depth jump (a mask that bleeds past
 /// the silhouette onto the wall or floor behind, or onto a neighbour in front). The parts stay in the map as
 /// Gaussians. Returns the Gaussians detached; regroup the objects when it is not 0.
@@ -142,7 +142,7 @@ pub fn detach_stray_parts(gaussians: &mut [Gaussian], n_objects: usize, scratch:
         });
         let Some((_, keep)) = best.filter(|_| parts > 1) else { continue };
         for g in gaussians.iter_mut().filter(|g| of_object(g) && g.cluster != keep) {
-            (g.role, g.instance, g.class, g.score) = (ROLE_RESIDUAL, 0, 0, 0.0);
+            (g.role, g.owner, g.instance, g.class, g.score) = (ROLE_RESIDUAL, 0, 0, 0, 0.0);
             detached += 1;
         }
     }
