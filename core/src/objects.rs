@@ -104,10 +104,10 @@ pub fn part_gap(a: &Gaussian, b: &Gaussian, params: &Params) -> f32 {
 
 /// Keeps, of every object grouped by [`group_objects`], only its largest part: its Gaussians are joined when
 /// their point boxes are at most [`part_gap`] apart, and every part but the one with the most points becomes
-/// residual Gaussians (unlabelled: role residual, owner, instance, class and score 0, as the residual set's). A solid object is one
-/// connected part; a second part is what an instance mask lent it across a depth jump (a mask that bleeds past
-/// the silhouette onto the wall or floor behind, or onto a neighbour in front). The parts stay in the map as
-/// Gaussians. Returns the Gaussians detached; regroup the objects when it is not 0.
+/// residual Gaussians (unlabelled: role residual, owner, instance, class and score 0, as the residual set's).
+/// A solid object is one connected part; a second part is what an instance mask lent it across a depth jump
+/// (a mask that bleeds past the silhouette onto the wall or floor behind, or onto a neighbour in front). The
+/// parts stay in the map as Gaussians. Returns the Gaussians detached; regroup the objects when it is not 0.
 ///
 /// `scratch` must hold 2 × `gaussians.len()` entries (the profile guarantees it); with less nothing is done.
 /// The Gaussians' `cluster` fields (the fused clusters) are kept.
