@@ -576,14 +576,15 @@ impl<'s> Mapper<'s> {
                 // phase + s ≥ N, without a division (a library call on the Cortex-M7).
                 let n = o.points as u64;
                 let s = (samples as u64).min(n);
-                let next = *c as u64 + s;
+                let mut next = *c as u64 + s;
                 if next >= n {
+                    next -= n;
                     if let Some(slot) = sq_points.get_mut((k - first) * samples + *t) {
                         *slot = p.xyz;
                         *t += 1;
                     }
                 }
-                *c = (if next >= n { next - n } else { next }) as u32;
+                *c = next as u32;
             };
             // The point pass samples for eligible objects only, over the pixels their points came from (each
             // object's pixel box holds all of its points): skipped when there are none.

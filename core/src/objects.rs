@@ -99,7 +99,12 @@ pub fn group_objects(gaussians: &mut [Gaussian], objects: &mut Bounded<'_, Objec
 /// [`detach_stray_parts`]: one voxel edge (neighbouring supervoxels meet within a voxel) plus the depth
 /// tolerance at the farther of the two (their boxes may stand apart along the ray by the depth noise).
 pub fn part_gap(a: &Gaussian, b: &Gaussian, params: &Params) -> f32 {
-    params.voxel_resolution + params.depth_tolerance(a.mean[2].max(b.mean[2]))
+    part_gap_at(a.mean[2].max(b.mean[2]), params)
+}
+
+/// [`part_gap`] at depth `z`, metres (it grows with depth, as the depth tolerance does).
+fn part_gap_at(z: f32, params: &Params) -> f32 {
+    params.voxel_resolution + params.depth_tolerance(z)
 }
 
 /// Keeps, of every object grouped by [`group_objects`], only its largest part: its Gaussians are joined when
@@ -117,8 +122,8 @@ pub fn detach_stray_parts(gaussians: &mut [Gaussian], n_objects: usize, scratch:
     for (slot, g) in saved.iter_mut().zip(gaussians.iter()) {
         *slot = g.cluster;
     }
-    let reach = params.voxel_resolution + params.depth_tolerance(params.depth_max);
-    fuse::connect(gaussians, order, reach, |a, b| {
+    // No Gaussian lies beyond `depth_max`: the largest gap there bounds the sweep.
+    fuse::connect(gaussians, order, part_gap_at(params.depth_max, params), |a, b| {
         a.role == ROLE_OBJECT
             && b.role == ROLE_OBJECT
             && a.owner == b.owner
