@@ -3,7 +3,7 @@
 use crate::annotate::{self, MaskHit};
 use crate::error::FrameError;
 use crate::error::ParamError;
-use crate::frame::{Frame, Pose};
+use crate::frame::Frame;
 use crate::fuse;
 use crate::gmm::{self, Gaussian, GmmPools, SplitTask};
 use crate::gmm::{ROLE_OBJECT, ROLE_PLANE, ROLE_RESIDUAL};
@@ -548,15 +548,6 @@ impl<'s> Mapper<'s> {
             return;
         }
         self.tracker.begin_frame(&params);
-        let pose = checked.frame.pose;
-        let fitted = self
-            .objects
-            .as_slice()
-            .iter()
-            .enumerate()
-            .filter(|(_, o)| o.points >= params.sq_min_points)
-            .map(|(k, o)| (k, tracking_centre(o, pose), o.class));
-        self.tracker.claim_refusals(fitted, &params);
         let voxel_masks = self.voxel_masks(checked);
         let samples = (params.lm_samples as usize).min(superquadric::MAX_SAMPLES);
         let per_pass = (self.sq_points.len() / samples).clamp(1, MAX_OBJECTS_PER_PASS);
@@ -656,7 +647,8 @@ impl<'s> Mapper<'s> {
                 },
                 None => *q,
             };
-            let track_centre = tracking_centre(&object, pose);
+            let support_centre = linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5);
+            let track_centre = pose.map_or(support_centre, |p| p.to_world(support_centre));
             // What else the frame saw: the planes the object is on, and free space around it.
             let mut supports = [superquadric::HalfSpace { normal: [0.0; 3], offset: 0.0 }; superquadric::MAX_SUPPORTS];
             let patches = self.patches.get(..self.patches_len).unwrap_or(&[]);
@@ -703,14 +695,14 @@ impl<'s> Mapper<'s> {
             // An object whose cold search was refused in the previous frame (and whose track, if it has one,
             // gave no acceptable warm start) skips its cold search on all but every `REFUSAL_RETRY_FRAMES`-th
             // frame (see `track::Refusal`): it keeps its Gaussians meanwhile, or its track's held state.
-            skipped = warm.is_none() && self.tracker.skips_search(k, track_centre, object.class, &params);
+            skipped = warm.is_none() && self.tracker.skips_search(track_centre, object.class, &params);
             let fit =
                 if skipped { None } else { warm.or_else(|| superquadric::fit(points, &frame, &evidence, &params)) };
             if !skipped {
                 if fit.is_some_and(|f| f.accepted) {
-                    self.tracker.forget_refusal(k, track_centre, object.class, &params);
+                    self.tracker.forget_refusal(track_centre, object.class, &params);
                 } else {
-                    self.tracker.refuse(k, track_centre, object.class, &params);
+                    self.tracker.refuse(track_centre, object.class, &params);
                 }
             }
             if let Some(fit) = fit {
@@ -1030,13 +1022,6 @@ const FOREIGN_PROBES: usize = 40;
 const FOREIGN_REACH: f32 = 0.05;
 /// Most probes inside other objects' tracked shapes in one fit.
 const OBSTACLE_PROBES: usize = 48;
-
-/// The centre of `object`'s support box in the tracking frame (the world frame when the frame has a `pose`),
-/// metres: where its track and its refusals are looked up.
-fn tracking_centre(object: &Object, pose: Option<Pose>) -> Vec3 {
-    let centre = linalg::scale(linalg::add(object.bbox_min, object.bbox_max), 0.5);
-    pose.map_or(centre, |p| p.to_world(centre))
-}
 
 /// Probes from what was seen of the other objects near object `k` (what was seen of a neighbour lies outside
 /// this object; its contact face is hidden, its visible faces are not): each Gaussian of another object whose

@@ -167,14 +167,7 @@ pub struct Tracker<'a> {
     /// Recently refused objects (a free slot has `count` 0). When all are taken, the least recently refused
     /// is forgotten first (lowest slot on ties).
     pub refusals: [Refusal; MAX_REFUSALS],
-    /// This frame's object (the caller's index) each refusal belongs to ([`Tracker::claim_refusals`]);
-    /// [`NO_CLAIM`] for none (and for an index beyond it). Not part of the carried state: every frame claims
-    /// anew.
-    pub claims: [u16; MAX_REFUSALS],
 }
-
-/// A refusal no object of this frame claims.
-pub const NO_CLAIM: u16 = u16::MAX;
 
 /// What an update did.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -214,55 +207,26 @@ fn within_scale_gate(track: &Superquadric, measured: &Superquadric, gate: f32, p
 impl<'a> Tracker<'a> {
     /// A tracker over `tracks`.
     pub fn new(tracks: Bounded<'a, Track>) -> Self {
-        Tracker {
-            tracks,
-            next_id: 0,
-            frame: 0,
-            refusals: [Refusal::default(); MAX_REFUSALS],
-            claims: [NO_CLAIM; MAX_REFUSALS],
-        }
+        Tracker { tracks, next_id: 0, frame: 0, refusals: [Refusal::default(); MAX_REFUSALS] }
     }
 
-    /// Gives each refusal of the previous frame to the object of this frame nearest to it: `objects` are
-    /// (caller's index, centre in the tracking frame, label) of every object that may be fitted, and a refusal
-    /// goes to the nearest of its label within `d_max`. Without it, an accepted neighbour a few decimetres away
-    /// would take (and forget) the refusal of an object that is refused frame after frame, whose search would
-    /// then never be skipped (measured on redkitchen 0–59 with segmenter masks: 51 skips in 60 frames with
-    /// nearest-to-the-object matching). Call it once per frame, after [`Tracker::begin_frame`].
-    pub fn claim_refusals(&mut self, objects: impl Iterator<Item = (usize, Vec3, u16)> + Clone, params: &Params) {
-        let frame = self.frame;
-        for (r, claim) in self.refusals.iter().zip(self.claims.iter_mut()) {
-            *claim = NO_CLAIM;
-            if r.count == 0 || r.last_frame.wrapping_add(1) != frame {
-                continue;
-            }
-            let same = objects.clone().filter(|o| o.2 == r.class).map(|(k, c, _)| (k, c));
-            if let Some(k) = nearest_within(same, r.centre, params.d_max) {
-                *claim = u16::try_from(k).unwrap_or(NO_CLAIM);
-            }
-        }
+    /// The remembered refusal of label `class` nearest to `centre` (tracking frame) within `d_max` that was
+    /// refused in the previous frame and not yet in this one.
+    fn recent_refusal(&self, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
+        let recent = self
+            .refusals
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| r.count > 0 && r.class == class && r.last_frame.wrapping_add(1) == self.frame);
+        nearest_within(recent.map(|(i, r)| (i, r.centre)), centre, params.d_max)
     }
 
-    /// The remembered refusal claimed by `object` ([`Tracker::claim_refusals`]) of label `class` nearest to
-    /// `centre` (tracking frame) within `d_max` that was refused in the previous frame and not yet in this one.
-    fn recent_refusal(&self, object: usize, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
-        let object = u16::try_from(object).unwrap_or(NO_CLAIM);
-        let recent = self.refusals.iter().zip(&self.claims).enumerate().filter(|(_, (r, &claim))| {
-            claim == object
-                && claim != NO_CLAIM
-                && r.count > 0
-                && r.class == class
-                && r.last_frame.wrapping_add(1) == self.frame
-        });
-        nearest_within(recent.map(|(i, (r, _))| (i, r.centre)), centre, params.d_max)
-    }
-
-    /// Whether the cold search for `object` (the index it claimed refusals with) at `centre` (tracking frame)
-    /// with label `class` is skipped this frame: it was refused in the previous frame and this is not one of its retry frames (every
+    /// Whether the cold search for an object at `centre` (tracking frame) with label `class` is skipped this
+    /// frame: it was refused in the previous frame and this is not one of its retry frames (every
     /// [`REFUSAL_RETRY_FRAMES`]-th). A skip counts as a refusal.
-    pub fn skips_search(&mut self, object: usize, centre: Vec3, class: u16, params: &Params) -> bool {
+    pub fn skips_search(&mut self, centre: Vec3, class: u16, params: &Params) -> bool {
         let frame = self.frame;
-        let Some(r) = self.recent_refusal(object, centre, class, params).and_then(|i| self.refusals.get_mut(i)) else {
+        let Some(r) = self.recent_refusal(centre, class, params).and_then(|i| self.refusals.get_mut(i)) else {
             return false;
         };
         if r.count % REFUSAL_RETRY_FRAMES == 0 {
@@ -272,10 +236,10 @@ impl<'a> Tracker<'a> {
         true
     }
 
-    /// Records that the cold search for `object` at `centre` with label `class` found no acceptable shape.
-    pub fn refuse(&mut self, object: usize, centre: Vec3, class: u16, params: &Params) {
+    /// Records that the cold search for an object at `centre` with label `class` found no acceptable shape.
+    pub fn refuse(&mut self, centre: Vec3, class: u16, params: &Params) {
         let frame = self.frame;
-        let slot = match self.recent_refusal(object, centre, class, params) {
+        let slot = match self.recent_refusal(centre, class, params) {
             Some(i) => Some(i),
             // A free or stale slot, else the least recently refused.
             None => self
@@ -294,9 +258,9 @@ impl<'a> Tracker<'a> {
         }
     }
 
-    /// Forgets the refusal of `object` at `centre` with label `class` (its shape was accepted).
-    pub fn forget_refusal(&mut self, object: usize, centre: Vec3, class: u16, params: &Params) {
-        if let Some(r) = self.recent_refusal(object, centre, class, params).and_then(|i| self.refusals.get_mut(i)) {
+    /// Forgets the refusal of an object at `centre` with label `class` (its shape was accepted).
+    pub fn forget_refusal(&mut self, centre: Vec3, class: u16, params: &Params) {
+        if let Some(r) = self.recent_refusal(centre, class, params).and_then(|i| self.refusals.get_mut(i)) {
             *r = Refusal::default();
         }
     }
@@ -304,7 +268,6 @@ impl<'a> Tracker<'a> {
     /// Starts a frame: retires tracks not updated for more than `track_max_missed` frames.
     pub fn begin_frame(&mut self, params: &Params) {
         self.frame = self.frame.wrapping_add(1);
-        self.claims = [NO_CLAIM; MAX_REFUSALS];
         let frame = self.frame;
         let mut keep = 0;
         let n = self.tracks.len();
@@ -390,61 +353,30 @@ mod tests {
         let mut tracker = Tracker::new(Bounded::new(&mut storage));
         let (here, class) = ([0.5, 0.0, 2.0], 3);
         let mut searched = [false; 6];
-        let start = |tracker: &mut Tracker<'_>, objects: &[(usize, Vec3, u16)]| {
-            tracker.begin_frame(&params);
-            tracker.claim_refusals(objects.iter().copied(), &params);
-        };
         for s in searched.iter_mut() {
-            start(&mut tracker, &[(0, here, class)]);
-            if !tracker.skips_search(0, here, class, &params) {
+            tracker.begin_frame(&params);
+            if !tracker.skips_search(here, class, &params) {
                 *s = true;
-                tracker.refuse(0, here, class, &params);
+                tracker.refuse(here, class, &params);
             }
         }
         assert_eq!(searched, [true, false, true, false, true, false]);
         // Another label, or a place beyond d_max, is searched.
-        let far = [0.5, 0.0, 2.0 + 1.1 * params.d_max];
-        start(&mut tracker, &[(0, here, class + 1), (1, far, class)]);
-        assert!(!tracker.skips_search(0, here, class + 1, &params));
-        assert!(!tracker.skips_search(1, far, class, &params));
+        tracker.begin_frame(&params);
+        assert!(!tracker.skips_search(here, class + 1, &params));
+        assert!(!tracker.skips_search([0.5, 0.0, 2.0 + 1.1 * params.d_max], class, &params));
         // A frame without the object breaks the chain: the next frame searches.
-        start(&mut tracker, &[(0, here, class)]);
-        assert!(!tracker.skips_search(0, here, class, &params));
+        tracker.begin_frame(&params);
+        assert!(!tracker.skips_search(here, class, &params));
         // Refused, then accepted on a retry frame: forgotten, so the frame after searches again.
-        tracker.refuse(0, here, class, &params);
-        start(&mut tracker, &[(0, here, class)]);
-        assert!(tracker.skips_search(0, here, class, &params));
-        start(&mut tracker, &[(0, here, class)]);
-        assert!(!tracker.skips_search(0, here, class, &params));
-        tracker.forget_refusal(0, here, class, &params);
-        start(&mut tracker, &[(0, here, class)]);
-        assert!(!tracker.skips_search(0, here, class, &params));
-    }
-
-    /// A refused object keeps its refusal when a neighbour within `d_max` is accepted first in the same frame:
-    /// the refusal belongs to the object nearest to it, and the neighbour neither forgets nor takes it.
-    #[test]
-    fn an_accepted_neighbour_does_not_take_the_refusal_of_a_refused_object() {
-        let params = Params::default();
-        let mut storage = [Track::zeroed(); 2];
-        let mut tracker = Tracker::new(Bounded::new(&mut storage));
-        let refused = [0.0, 0.3, 1.2];
-        let neighbour = [0.0, 0.2, 1.4]; // 0.22 m away, within d_max
-        assert!(linalg::norm(linalg::sub(refused, neighbour)) < params.d_max);
-        let objects = [(0, neighbour, 0), (1, refused, 0)];
-        let mut searched = [false; 4];
-        for s in searched.iter_mut() {
-            tracker.begin_frame(&params);
-            tracker.claim_refusals(objects.iter().copied(), &params);
-            // The neighbour is processed first and accepted.
-            assert!(!tracker.skips_search(0, neighbour, 0, &params));
-            tracker.forget_refusal(0, neighbour, 0, &params);
-            if !tracker.skips_search(1, refused, 0, &params) {
-                *s = true;
-                tracker.refuse(1, refused, 0, &params);
-            }
-        }
-        assert_eq!(searched, [true, false, true, false]);
+        tracker.refuse(here, class, &params);
+        tracker.begin_frame(&params);
+        assert!(tracker.skips_search(here, class, &params));
+        tracker.begin_frame(&params);
+        assert!(!tracker.skips_search(here, class, &params));
+        tracker.forget_refusal(here, class, &params);
+        tracker.begin_frame(&params);
+        assert!(!tracker.skips_search(here, class, &params));
     }
 
     /// A full track pool refuses a new track in the frame it happens; the next frame's report starts at 0
@@ -505,13 +437,12 @@ mod tests {
         let at = |k: usize| [k as f32 * 2.0 * params.d_max, 0.0, 2.0];
         tracker.begin_frame(&params);
         for k in 0..MAX_REFUSALS {
-            tracker.refuse(k, at(k), 1, &params);
+            tracker.refuse(at(k), 1, &params);
         }
         tracker.begin_frame(&params);
-        tracker.claim_refusals([(0, at(0), 1), (MAX_REFUSALS, at(MAX_REFUSALS), 1)].into_iter(), &params);
         // Object 0 is refused again this frame; one more object takes the slot of object 1 (refused longest ago).
-        tracker.refuse(0, at(0), 1, &params);
-        tracker.refuse(MAX_REFUSALS, at(MAX_REFUSALS), 1, &params);
+        tracker.refuse(at(0), 1, &params);
+        tracker.refuse(at(MAX_REFUSALS), 1, &params);
         assert!(tracker.refusals.iter().any(|r| r.centre == at(MAX_REFUSALS)));
         assert!(!tracker.refusals.iter().any(|r| r.centre == at(1)));
         assert!(tracker.refusals.iter().any(|r| r.centre == at(0) && r.count == 2));
