@@ -58,6 +58,24 @@ fn touching_objects_with_perfect_and_degraded_masks() {
     }
 }
 
+/// The desk's 60 cm tower seen from above: its top shows its whole depth, so the back does not grow by the
+/// hidden-depth prior (docs/pipeline.md, stage 11), and with masks dilated by 2 px the wall beside its silhouette
+/// does not pull it either (fit points just behind an edge of their own mask are left out). Measured over these
+/// 6 frames, before → after: seed 1 17.0 → 11.5 mm, seed 3 30.3 → 5.2 mm, seed 1 dilated 24.7 → 18.7 mm.
+#[test]
+fn a_box_seen_from_above_keeps_the_depth_its_top_shows() {
+    for (seed, flags, max_g2r) in
+        [("1", &[][..], 0.015), ("3", &[][..], 0.015), ("1", &["--mask-dilate", "2"][..], 0.02)]
+    {
+        let dir = tempfile::tempdir().unwrap();
+        let data = synth(dir.path(), "desk", seed, flags);
+        let s = run_ok(&data, &dir.path().join("run"), &[]);
+        let what = format!("desk seed {seed} {flags:?}");
+        assert!(metric(&s, "g2r_true_rmse_m") <= max_g2r, "{what}: G2R against true surfaces {}", s["g2r_true_rmse_m"]);
+        assert!(s["primitives"]["sq"].as_f64().unwrap() >= 2.0, "{what}: superquadrics {}", s["primitives"]["sq"]);
+    }
+}
+
 /// YCB-Video frames with ground-truth masks (objects touching at close range): superquadrics out of observed
 /// free space, none behind the table, none spanning two objects.
 #[test]

@@ -579,7 +579,15 @@ impl<'s> Mapper<'s> {
                 let mut next = *c as u64 + s;
                 if next >= n {
                     next -= n;
-                    if let Some(slot) = sq_points.get_mut((k - first) * samples + *t) {
+                    // A point just behind an edge of its own mask's near side is background the mask lends.
+                    let own_mask = checked.masks.as_ref().and_then(|m| {
+                        let slot = m.instances.iter().position(|i| i.id == o.instance)?;
+                        Some(move |x: u16, y: u16| m.contains(slot, x, y))
+                    });
+                    let veiled = own_mask.is_some_and(|own| {
+                        superquadric::behind_occluding_edge(&checked.frame, &params, p.u, p.v, p.xyz[2], own)
+                    });
+                    if let (false, Some(slot)) = (veiled, sq_points.get_mut((k - first) * samples + *t)) {
                         *slot = p.xyz;
                         *t += 1;
                     }

@@ -737,6 +737,44 @@ fn observed_at(frame: &Frame<'_>, params: &Params, p: Vec3, radius: i32) -> Obse
     }
 }
 
+/// Whether a point at pixel (`u`, `v`) and depth `z` (metres) lies just behind an edge of its own mask: a pixel
+/// within [`EDGE_WINDOW`] pixels that `own` covers has a valid depth nearer than `z` by more than the depth
+/// tolerance plus the most any surface seen less edge-on than [`GRAZING_COS`] changes in depth over that many
+/// pixels (a box's top seen from 16° changes by 3 cm over 2 pixels at 2.4 m: a slope, not an edge). There a mask
+/// that reaches a pixel or two past its object's silhouette (dilated, misaligned) lends the object the
+/// background behind it, and the superquadric fit leaves such points out. The object's own silhouette is the
+/// near side of the edge and stays, and so does an object seen behind another one (the near side is not its
+/// mask). Measured on the desk scene with masks dilated by 2 px: G2R against the true surfaces 25.2 → 14.2 mm;
+/// without the mask test (any nearer pixel) a bin behind a crate lost its rim and clutter (seed 3) went from
+/// 5.9 to 14.3 mm.
+pub fn behind_occluding_edge(
+    frame: &Frame<'_>,
+    params: &Params,
+    u: u16,
+    v: u16,
+    z: f32,
+    own: impl Fn(u16, u16) -> bool,
+) -> bool {
+    let (lo, hi) = frame.raw_range(params);
+    let steepest = libm::sqrtf(1.0 - GRAZING_COS * GRAZING_COS) / GRAZING_COS;
+    let slope = EDGE_WINDOW as f32 * z / frame.intrinsics.fx.max(1.0) * steepest;
+    let nearer_than = z - params.depth_tolerance(z) - slope;
+    let (w, h) = (i32::from(frame.width), i32::from(frame.height));
+    let (u, v) = (i32::from(u), i32::from(v));
+    for y in (v - EDGE_WINDOW).max(0)..=(v + EDGE_WINDOW).min(h - 1) {
+        for x in (u - EDGE_WINDOW).max(0)..=(u + EDGE_WINDOW).min(w - 1) {
+            let raw = frame.depth.get(y as usize * w as usize + x as usize).copied().unwrap_or(0);
+            if (lo..=hi).contains(&raw) && frame.metres(raw) < nearer_than && own(x as u16, y as u16) {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+/// Pixels around a fit point searched for an occluding edge ([`behind_occluding_edge`]).
+const EDGE_WINDOW: i32 = 2;
+
 /// One fit problem: the points, what else was seen, and the priors.
 #[derive(Debug, Clone, Copy)]
 struct Problem<'a> {
@@ -1873,6 +1911,47 @@ mod front_view_tests {
             }
         }
         depth
+    }
+
+    /// A point of the wall beside a box's silhouette is background lent by the box's mask when the mask covers
+    /// the nearer box pixels beside it; not when the nearer pixels are another object's, nor on a slanted face.
+    #[test]
+    fn a_point_just_behind_its_own_masks_edge_is_veiled() {
+        // A 20 cm box at 1.4–1.6 m before the wall at 2 m; its left edge at x = −0.1 m is column 160 − 34.3.
+        let (lo, hi) = ([-0.1, -0.1, 1.4], [0.1, 0.1, 1.6]);
+        let depth = scene(lo, hi);
+        let frame = Frame {
+            width: W as u16,
+            height: H as u16,
+            depth: &depth,
+            depth_scale: 1000.0,
+            colour: &[],
+            intrinsics: INTRINSICS,
+            pose: None,
+        };
+        let params = Params::default();
+        let in_box = |x: u16, y: u16| {
+            let p = frame.intrinsics.unproject(f32::from(x), f32::from(y), 1.4);
+            (lo[0]..=hi[0]).contains(&p[0]) && (lo[1]..=hi[1]).contains(&p[1])
+        };
+        let (u, v) = (124u16, 120u16); // on the wall, 1–2 px left of the box's left edge
+        assert!(!in_box(u, v) && in_box(u + 2, v), "the test point lies just outside the box");
+        let z = frame.metres(depth[v as usize * W + u as usize]);
+        assert!((z - 2.0).abs() < 1e-3, "{z}");
+        assert!(behind_occluding_edge(&frame, &params, u, v, z, in_box), "the box's own mask lends it the wall");
+        assert!(!behind_occluding_edge(&frame, &params, u, v, z, |_, _| false), "the nearer pixels are not its mask");
+        // On the box's front face, nowhere nearer: kept.
+        assert!(!behind_occluding_edge(&frame, &params, 160, 120, 1.4, in_box));
+        // A floor 1.9 cm deeper per pixel row (seen about 80° from its normal at 1.8 m) is a slope, not an edge.
+        let floor: Vec<u16> = (0..W * H).map(|i| 1000 + 19 * (i / W) as u16).collect();
+        let sloped = Frame { depth: &floor, ..frame };
+        let z = sloped.metres(floor[40 * W + 160]);
+        assert!((z - 1.76).abs() < 1e-3, "{z}");
+        assert!(!behind_occluding_edge(&sloped, &params, 160, 40, z, |_, _| true));
+        // The same rows with a 20 cm step: an edge.
+        let stepped: Vec<u16> = (0..W * H).map(|i| floor[i] + if i / W >= 40 { 200 } else { 0 }).collect();
+        let stepped = Frame { depth: &stepped, ..frame };
+        assert!(behind_occluding_edge(&stepped, &params, 160, 40, z + 0.2, |_, _| true));
     }
 
     /// The hidden-depth prior gives a box's far end no room when the camera saw the box's top up to its back
