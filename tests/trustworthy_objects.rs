@@ -61,11 +61,12 @@ fn touching_objects_with_perfect_and_degraded_masks() {
 /// The desk's 60 cm tower seen from above: its top shows its whole depth, so the back does not grow by the
 /// hidden-depth prior (docs/pipeline.md, stage 11), and with masks dilated by 2 px the wall beside its silhouette
 /// does not pull it either (fit points just behind an edge of their own mask are left out). Measured over these
-/// 6 frames, before → after: seed 1 17.0 → 11.5 mm, seed 3 30.3 → 5.2 mm, seed 1 dilated 24.7 → 18.7 mm.
+/// 6 frames, G2R against the true surfaces before → after: seed 1 17.0 → 4.9 mm, seed 2 15.7 → 3.8 mm, seed 3
+/// 30.3 → 5.2 mm, seed 1 with masks dilated by 2 px 24.7 → 12.8 mm.
 #[test]
 fn a_box_seen_from_above_keeps_the_depth_its_top_shows() {
     for (seed, flags, max_g2r) in
-        [("1", &[][..], 0.015), ("3", &[][..], 0.015), ("1", &["--mask-dilate", "2"][..], 0.02)]
+        [("1", &[][..], 0.01), ("2", &[][..], 0.01), ("3", &[][..], 0.01), ("1", &["--mask-dilate", "2"][..], 0.015)]
     {
         let dir = tempfile::tempdir().unwrap();
         let data = synth(dir.path(), "desk", seed, flags);
