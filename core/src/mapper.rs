@@ -579,8 +579,10 @@ impl<'s> Mapper<'s> {
                 let mut next = *c as u64 + s;
                 if next >= n {
                     next -= n;
-                    // A point just behind an edge of its own mask's near side is background the mask lends.
-                    let own_mask = checked.masks.as_ref().and_then(|m| {
+                    // A point just behind an edge of its own mask's near side is background the mask lends
+                    // (objects by geometry, MMQ, have no mask of their own: their key is a cluster id).
+                    let by_mask = !params.variant.geometric_objects();
+                    let own_mask = checked.masks.as_ref().filter(|_| by_mask).and_then(|m| {
                         let slot = m.instances.iter().position(|i| i.id == o.instance)?;
                         Some(move |x: u16, y: u16| m.contains(slot, x, y))
                     });
