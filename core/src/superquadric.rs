@@ -591,7 +591,7 @@ const EXTENT_WEIGHT: f32 = 1.0;
 /// camera (the data cost is flat there). A far end the camera saw gets no hidden room: the support reaches it
 /// along a camera-facing flat face ([`reaches_along_seen_face`]) and the camera saw free space beyond it
 /// ([`ends_where_seen`]); otherwise the top of a box seen from above let its back grow by the prior (the desk
-/// scene's 60 cm tower was fitted 7.6 cm too deep, 15.2 mm G2R against the true surfaces; now 6.8 mm).
+/// scene's 60 cm tower was fitted 7.6 cm too deep, 15.2 mm G2R against the true surfaces; now 5.0 mm).
 fn extent_excess(
     sq: &Superquadric,
     points: &[Vec3],
@@ -693,16 +693,12 @@ fn reaches_along_seen_face(sq: &Superquadric, l: Vec3, k: usize) -> bool {
 /// beyond the top's edge, whose neighbours are the top itself.)
 fn ends_where_seen(sq: &Superquadric, l: Vec3, away: Vec3, frame: &Frame<'_>, params: &Params) -> bool {
     let bound = linalg::add(sq.centre, linalg::mat_vec(&sq.rotation, l));
-    let (w, h) = (i32::from(frame.width), i32::from(frame.height));
+    let w = usize::from(frame.width);
     let (lo, hi) = frame.raw_range(params);
     for step in [SEEN_END_STEP, 2.0 * SEEN_END_STEP] {
         let beyond = linalg::add(bound, linalg::scale(away, step));
-        let Some([u, v]) = frame.intrinsics.project(beyond) else { return false };
-        let (u, v) = (linalg::floor_i32(u + 0.5), linalg::floor_i32(v + 0.5));
-        if u < 0 || v < 0 || u >= w || v >= h {
-            return false;
-        }
-        let raw = frame.depth.get(v as usize * w as usize + u as usize).copied().unwrap_or(0);
+        let Some([u, v]) = pixel_of(frame, beyond) else { return false };
+        let raw = frame.depth.get(v as usize * w + u as usize).copied().unwrap_or(0);
         if raw > hi {
             return beyond[2] < params.depth_max;
         }
@@ -712,6 +708,14 @@ fn ends_where_seen(sq: &Superquadric, l: Vec3, away: Vec3, frame: &Frame<'_>, pa
         }
     }
     false
+}
+
+/// The pixel (column, row) a camera-frame point projects to, rounded to the nearest; `None` behind the camera or
+/// outside the image.
+fn pixel_of(frame: &Frame<'_>, p: Vec3) -> Option<[i32; 2]> {
+    let [u, v] = frame.intrinsics.project(p)?;
+    let (u, v) = (linalg::floor_i32(u + 0.5), linalg::floor_i32(v + 0.5));
+    (u >= 0 && v >= 0 && u < i32::from(frame.width) && v < i32::from(frame.height)).then_some([u, v])
 }
 
 /// What the camera saw along the ray through a point ([`observed_at`]).
@@ -729,12 +733,8 @@ enum Observed {
 /// The depths the camera saw at the pixel of `p` (camera frame) and within `radius` pixels of it, with the
 /// depth tolerance σ-margin ([`Params::depth_tolerance`]) taken off the nearest and added to the farthest.
 fn observed_at(frame: &Frame<'_>, params: &Params, p: Vec3, radius: i32) -> Observed {
-    let Some([u, v]) = frame.intrinsics.project(p) else { return Observed::Outside };
-    let (u, v) = (linalg::floor_i32(u + 0.5), linalg::floor_i32(v + 0.5));
-    let (w, h) = (frame.width as i32, frame.height as i32);
-    if u < 0 || v < 0 || u >= w || v >= h {
-        return Observed::Outside;
-    }
+    let Some([u, v]) = pixel_of(frame, p) else { return Observed::Outside };
+    let w = i32::from(frame.width);
     let range = frame.raw_range(params);
     let own = frame.depth.get(v as usize * w as usize + u as usize).copied().unwrap_or(0);
     if !(range.0..=range.1).contains(&own) {
