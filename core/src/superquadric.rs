@@ -626,16 +626,18 @@ fn extent_excess(
     for k in 0..3 {
         let (Some(&a), Some(&lo), Some(&hi)) = (sq.scales.get(k), lo.get(k), hi.get(k)) else { continue };
         let facing = linalg::dot(linalg::column(&sq.rotation, k), view);
-        let far = if facing >= 0.0 { 2 * k } else { 2 * k + 1 };
-        let far_seen = match (evidence.view, out.bound.get(far)) {
-            (Some((frame, params)), Some(&l)) => {
-                let away = linalg::scale(linalg::column(&sq.rotation, k), if facing >= 0.0 { 1.0 } else { -1.0 });
-                reaches_along_seen_face(sq, l, k) && ends_where_seen(sq, l, away, frame, params)
-            }
-            _ => false,
-        };
-        let hidden = if far_seen { 0.0 } else { libm::fabsf(facing) * hidden };
         let m = margin(a);
+        let (far, beyond_margin) = if facing >= 0.0 { (2 * k, a - hi - m) } else { (2 * k + 1, a + lo - m) };
+        // Whether the far end was seen matters only when it reaches beyond the margin (else its excess is 0).
+        let far_seen = beyond_margin > 0.0
+            && match (evidence.view, out.bound.get(far)) {
+                (Some((frame, params)), Some(&l)) => {
+                    let away = linalg::scale(linalg::column(&sq.rotation, k), if facing >= 0.0 { 1.0 } else { -1.0 });
+                    reaches_along_seen_face(sq, l, k) && ends_where_seen(sq, l, away, frame, params)
+                }
+                _ => false,
+            };
+        let hidden = if far_seen { 0.0 } else { libm::fabsf(facing) * hidden };
         let (plus, minus) = if facing >= 0.0 { (m + hidden, m) } else { (m, m + hidden) };
         if let Some(e) = out.metres.get_mut(2 * k) {
             *e = (a - hi - plus).max(0.0);
