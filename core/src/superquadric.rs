@@ -1897,6 +1897,11 @@ mod front_view_tests {
     const H: usize = 240;
     const INTRINSICS: Intrinsics = Intrinsics { fx: 480.0, fy: 480.0, cx: 160.0, cy: 120.0 };
 
+    /// A `W × H` frame of raw `depth` (1 mm units) seen through `intrinsics`, without colour or pose.
+    fn frame_of(depth: &[u16], intrinsics: Intrinsics) -> Frame<'_> {
+        Frame { width: W as u16, height: H as u16, depth, depth_scale: 1000.0, colour: &[], intrinsics, pose: None }
+    }
+
     /// Depth (raw, 1 mm units) of a wall at 2 m with an axis-aligned box in front of it, `lo`..`hi` metres.
     fn scene(lo: Vec3, hi: Vec3) -> Vec<u16> {
         scene_of(&INTRINSICS, &[(lo, hi)])
@@ -1935,15 +1940,7 @@ mod front_view_tests {
         // A 20 cm box at 1.4–1.6 m before the wall at 2 m; its left edge at x = −0.1 m is column 160 − 34.3.
         let (lo, hi) = ([-0.1, -0.1, 1.4], [0.1, 0.1, 1.6]);
         let depth = scene(lo, hi);
-        let frame = Frame {
-            width: W as u16,
-            height: H as u16,
-            depth: &depth,
-            depth_scale: 1000.0,
-            colour: &[],
-            intrinsics: INTRINSICS,
-            pose: None,
-        };
+        let frame = frame_of(&depth, INTRINSICS);
         let params = Params::default();
         let in_box = |x: u16, y: u16| {
             let p = frame.intrinsics.unproject(f32::from(x), f32::from(y), 1.4);
@@ -1995,15 +1992,7 @@ mod front_view_tests {
                 let [u, v] = intrinsics.project(p).unwrap();
                 depth[(v + 0.5) as usize * W + (u + 0.5) as usize] = 0;
             }
-            let frame = Frame {
-                width: W as u16,
-                height: H as u16,
-                depth: &depth,
-                depth_scale: 1000.0,
-                colour: &[],
-                intrinsics,
-                pose: None,
-            };
+            let frame = frame_of(&depth, intrinsics);
             let evidence = Evidence { view: boxes.map(|_| (&frame, &params)), ..Evidence::default() };
             extent_excess(sq, &points, hidden, &evidence, |_| EXTENT_MARGIN).metres[4]
         };
@@ -2039,15 +2028,7 @@ mod front_view_tests {
         // A 20 cm box at 1.4–1.6 m whose left face (x = 5 cm) the camera sees at 88°.
         let (lo, hi) = ([0.05, -0.1, 1.4], [0.25, 0.1, 1.6]);
         let depth = scene(lo, hi);
-        let frame = Frame {
-            width: W as u16,
-            height: H as u16,
-            depth: &depth,
-            depth_scale: 1000.0,
-            colour: &[],
-            intrinsics: INTRINSICS,
-            pose: None,
-        };
+        let frame = frame_of(&depth, INTRINSICS);
         let params = Params::default();
         let view = |lo: Vec3, hi: Vec3| front_view(&box_sq(lo, hi), &frame, &params, &mut []);
         let truth = view(lo, hi);
