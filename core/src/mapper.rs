@@ -561,6 +561,13 @@ impl<'s> Mapper<'s> {
             let gaussians = self.gaussians.as_slice();
             let sq_points = &mut *self.sq_points;
             let eligible = |k: usize| objects.get(k).is_some_and(|o| o.points >= params.sq_min_points);
+            // Each object's own mask (its position in the frame's masks), for the edge test of its fit points;
+            // objects by geometry (MMQ) have none: their key is a cluster id, not a mask id.
+            let masks = checked.masks.as_ref().filter(|_| !params.variant.geometric_objects());
+            let mut mask_slot = [None; MAX_OBJECTS_PER_PASS];
+            for (slot, o) in mask_slot.iter_mut().zip(objects.get(first..last).unwrap_or(&[])) {
+                *slot = masks.and_then(|m| m.instances.iter().position(|i| i.id == o.instance));
+            }
             let sample = |p: &Point, v: Option<(usize, &Voxel)>| {
                 let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
                 let k = g.owner as usize;
@@ -579,14 +586,10 @@ impl<'s> Mapper<'s> {
                 let mut next = *c as u64 + s;
                 if next >= n {
                     next -= n;
-                    // A point just behind an edge of its own mask's near side is background the mask lends
-                    // (objects by geometry, MMQ, have no mask of their own: their key is a cluster id).
-                    let by_mask = !params.variant.geometric_objects();
-                    let own_mask = checked.masks.as_ref().filter(|_| by_mask).and_then(|m| {
-                        let slot = m.instances.iter().position(|i| i.id == o.instance)?;
-                        Some(move |x: u16, y: u16| m.contains(slot, x, y))
-                    });
-                    let veiled = own_mask.is_some_and(|own| {
+                    // A point just behind an edge of its own mask's near side is background the mask lends.
+                    let own = masks.zip(mask_slot.get(k - first).copied().flatten());
+                    let veiled = own.is_some_and(|(m, slot)| {
+                        let own = |x: u16, y: u16| m.contains(slot, x, y);
                         superquadric::behind_occluding_edge(&checked.frame, &params, p.u, p.v, p.xyz[2], own)
                     });
                     if let (false, Some(slot)) = (veiled, sq_points.get_mut((k - first) * samples + *t)) {
