@@ -604,23 +604,30 @@ fn extent_excess(
     if points.is_empty() {
         return out;
     }
+    // The extremes along each local axis and the first point that reaches each (by index: the bounding points'
+    // local coordinates are taken once at the end, the same bits).
     let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
-    for &p in points {
+    let (mut arg_lo, mut arg_hi) = ([0usize; 3], [0usize; 3]);
+    for (i, &p) in points.iter().enumerate() {
         let l = sq.local(p);
-        for k in 0..3 {
-            let (Some(x), Some(h), Some(m)) = (l.get(k).copied(), hi.get_mut(k), lo.get_mut(k)) else { continue };
+        for ((((&x, h), m), ah), al) in l.iter().zip(&mut hi).zip(&mut lo).zip(&mut arg_hi).zip(&mut arg_lo) {
             if x > *h {
                 *h = x;
-                if let Some(b) = out.bound.get_mut(2 * k) {
-                    *b = l;
-                }
+                *ah = i;
             }
             if x < *m {
                 *m = x;
-                if let Some(b) = out.bound.get_mut(2 * k + 1) {
-                    *b = l;
-                }
+                *al = i;
             }
+        }
+    }
+    for (k, (ah, al)) in arg_hi.iter().zip(&arg_lo).enumerate() {
+        let at = |i: usize| points.get(i).map_or([0.0; 3], |&p| sq.local(p));
+        if let Some(b) = out.bound.get_mut(2 * k) {
+            *b = at(*ah);
+        }
+        if let Some(b) = out.bound.get_mut(2 * k + 1) {
+            *b = at(*al);
         }
     }
     for k in 0..3 {
