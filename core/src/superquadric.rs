@@ -234,13 +234,27 @@ impl Superquadric {
     /// `points` in order, taking them [`LANES`] at a time.
     #[inline]
     fn for_each_powers(&self, points: &[Vec3], mut f: impl FnMut(Vec3, Powers)) {
+        self.for_each_powers_while(points, |l, pw| {
+            f(l, pw);
+            true
+        });
+    }
+
+    /// [`Superquadric::for_each_powers`] until, at the end of a batch of [`LANES`] points, `f` has last returned
+    /// false.
+    #[inline]
+    fn for_each_powers_while(&self, points: &[Vec3], mut f: impl FnMut(Vec3, Powers) -> bool) {
         for chunk in points.chunks(LANES) {
             let mut ls = [[0.0f32; 3]; LANES];
             for (d, &p) in ls.iter_mut().zip(chunk) {
                 *d = self.local(p);
             }
+            let mut go_on = true;
             for (&l, pw) in ls.iter().zip(self.powers_n(&ls)).take(chunk.len()) {
-                f(l, pw);
+                go_on = f(l, pw);
+            }
+            if !go_on {
+                return;
             }
         }
     }
@@ -896,9 +910,10 @@ fn probe_distance(sq: &Superquadric, p: Vec3, radial: bool) -> Option<(Vec3, Pow
 }
 
 /// The penalty terms of the objective beyond the data: size prior, extent constraint, supports and probes.
-fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
+fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> (f32, Excess) {
     let n = prob.points.len() as f32;
-    let excess = extent_excess(sq, prob.extent_points, prob.hidden, &prob.evidence, |_| EXTENT_MARGIN).metres;
+    let ends = extent_excess(sq, prob.extent_points, prob.hidden, &prob.evidence, |_| EXTENT_MARGIN);
+    let excess = ends.metres;
     let extent = EXTENT_WEIGHT * n * excess.iter().map(|e| e * e).sum::<f32>();
     let support: f32 = prob
         .evidence
@@ -920,31 +935,32 @@ fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
             FREE_WEIGHT * e * e
         })
         .sum();
-    prob.prior * linalg::dot(sq.scales, sq.scales) + extent + support + free
+    (prob.prior * linalg::dot(sq.scales, sq.scales) + extent + support + free, ends)
 }
 
 /// The LM objective: Σ (radial distance)² over the points, plus the [`penalties`].
 fn cost(sq: &Superquadric, prob: &Problem<'_>) -> f32 {
-    cost_keeping(sq, prob, &mut [])
+    cost_keeping(sq, prob, &mut [], f32::INFINITY).0
 }
 
-/// [`cost`], keeping each point's [`Powers`] in `kept` (as many as it holds).
-fn cost_keeping(sq: &Superquadric, prob: &Problem<'_>, kept: &mut [Powers]) -> f32 {
+/// [`cost`], keeping each point's [`Powers`] in `kept` (as many as it holds). Stops early, with a value at least
+/// `beaten`, once the cost cannot come below `beaten` (every term is non-negative and the sums are taken in the
+/// same order, so a cost below `beaten` is the same bits as without the bound); `kept` is then partly written.
+/// Returns the cost and the shape's extent excess ([`extent_excess`], for the next Jacobian at this shape).
+fn cost_keeping(sq: &Superquadric, prob: &Problem<'_>, kept: &mut [Powers], beaten: f32) -> (f32, Excess) {
+    let (penalty, ends) = penalties(sq, prob);
     let mut kept = kept.iter_mut();
     let mut data = 0.0f32;
-    sq.for_each_powers(prob.points, |l, pw| {
+    sq.for_each_powers_while(prob.points, |l, pw| {
         if let Some(k) = kept.next() {
             *k = pw;
         }
         let d = if prob.radial { Superquadric::radial_distance(l, &pw) } else { sq.distance_from(l, &pw).0 };
         data += d * d;
+        !(data + penalty >= beaten)
     });
-    let c = data + penalties(sq, prob);
-    if c.is_finite() {
-        c
-    } else {
-        f32::INFINITY
-    }
+    let c = data + penalty;
+    (if c.is_finite() { c } else { f32::INFINITY }, ends)
 }
 
 /// Whether two superquadrics have bit-identical parameters (then every evaluation of them is the same).
@@ -1090,6 +1106,39 @@ impl Normal {
     }
 }
 
+impl Normal {
+    /// [`Normal::add`] of the first `n` of `N` rows (residual, Jacobian row) with weight `w`, each entry of JᵀJ
+    /// held while all `N` rows are added to it (in row order, so the same sums as `N` calls of `add`: a skipped
+    /// row adds +0).
+    #[inline]
+    fn add_rows<const N: usize>(&mut self, rows: &[(f32, [f32; SQ_PARAMS]); N], n: usize, w: f32) {
+        let mut wide = [[0.0f32; NORMAL_LANES]; N];
+        let mut weighted = [[0.0f32; NORMAL_LANES]; N];
+        let mut residual = [0.0f32; N];
+        for (((x, wx), res), (r, row)) in wide.iter_mut().zip(&mut weighted).zip(&mut residual).zip(rows).take(n) {
+            if !r.is_finite() || row.iter().any(|d| !d.is_finite()) {
+                continue;
+            }
+            for ((d, e), j) in x.iter_mut().zip(wx.iter_mut()).zip(row) {
+                *d = *j;
+                *e = w * j;
+            }
+            *res = *r;
+        }
+        for (a, (row, ga)) in self.jtj.iter_mut().zip(self.jtr.iter_mut()).enumerate() {
+            let mut acc = *row;
+            for ((x, wx), res) in wide.iter().zip(&weighted).zip(&residual) {
+                let wa = wx.get(a).copied().unwrap_or(0.0);
+                *ga += wa * res;
+                for (y, jb) in acc.iter_mut().zip(x) {
+                    *y += wa * jb;
+                }
+            }
+            *row = acc;
+        }
+    }
+}
+
 /// Lanes of a row of the accumulated normal equations: the [`SQ_PARAMS`] parameters and one zero pad.
 const NORMAL_LANES: usize = 12;
 
@@ -1176,6 +1225,8 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
     // The powers of the last accepted candidate at every point: the next Jacobian is taken at that same model.
     let mut kept = [Powers::default(); MAX_SAMPLES];
     let mut kept_model: Option<Superquadric> = None;
+    // The extent excess of that candidate (the next Jacobian's, when it is that model).
+    let mut kept_excess: Option<Excess> = None;
     for _ in 0..iterations {
         if run.converged {
             break;
@@ -1217,7 +1268,8 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         }
         let mut normal = Normal { jtj: [[0.0f32; NORMAL_LANES]; SQ_PARAMS], jtr: [0.0f32; SQ_PARAMS] };
         let batched = points.len() <= kept.len();
-        if batched && !kept_model.is_some_and(|k| same_bits(&k, &base)) {
+        let at_kept = kept_model.is_some_and(|k| same_bits(&k, &base));
+        if batched && !at_kept {
             let mut slots = kept.iter_mut();
             base.for_each_powers(points, |_, pw| {
                 if let Some(k) = slots.next() {
@@ -1233,9 +1285,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
                     *d = base.local(p);
                     *q = *k;
                 }
-                for (r, row) in jac.distance_rows(&ls, &pw, chunk.len()).iter().take(chunk.len()) {
-                    normal.add(row, *r, 1.0);
-                }
+                normal.add_rows(&jac.distance_rows(&ls, &pw, chunk.len()), chunk.len(), 1.0);
             }
         } else {
             for &p in points {
@@ -1283,7 +1333,10 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         }
         // The extent constraint: residuals √W · excess of each end that reaches beyond its allowance, with
         // ∂/∂a_k = 1 and, through the bounding point l (local, l = Rᵀ(p − c)): ∂l_k/∂c = −R_k, ∂l_k/∂r = e_k × l.
-        let excess = extent_excess(&base, prob.extent_points, prob.hidden, &prob.evidence, |_| EXTENT_MARGIN);
+        let excess = match kept_excess.filter(|_| at_kept) {
+            Some(e) => e,
+            None => extent_excess(&base, prob.extent_points, prob.hidden, &prob.evidence, |_| EXTENT_MARGIN),
+        };
         for (end, (&e, &l)) in excess.metres.iter().zip(&excess.bound).enumerate() {
             if e <= 0.0 {
                 continue;
@@ -1327,10 +1380,11 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
             }
             clamp(&mut candidate, params.sq_eps_max);
             let sq = model(&candidate, &run.base);
-            let c = cost_keeping(&sq, prob, &mut kept);
+            let (c, ends) = cost_keeping(&sq, prob, &mut kept, current);
             kept_model = None;
             if c < current {
                 kept_model = Some(sq);
+                kept_excess = Some(ends);
                 if current - c < 1e-4 * current {
                     run.converged = true;
                 }
