@@ -449,7 +449,24 @@ impl Superquadric {
     pub fn lowest_along(&self, n: Vec3) -> f32 {
         -self.support(linalg::scale(n, -1.0))
     }
+
+    /// Whether n·x ≥ `level` holds over the whole solid by its bounding box alone (n a camera-frame unit
+    /// vector, metres): the box's lowest value c·n − Σ |R_k·n|·a_k, less a micrometre-scale margin for rounding,
+    /// is at least `level`, so [`Superquadric::lowest_along`] (no power taken here) is too. False when unsure.
+    pub fn clears(&self, n: Vec3, level: f32) -> bool {
+        let reach: f32 = (0..3)
+            .map(|k| libm::fabsf(linalg::dot(linalg::column(&self.rotation, k), n)))
+            .zip(self.scales)
+            .map(|(d, a)| d * a)
+            .sum();
+        let low = linalg::dot(self.centre, n) - reach;
+        low - CLEARS_ROUNDING * (1.0 + libm::fabsf(low) + reach) >= level
+    }
 }
+
+/// Relative margin of [`Superquadric::clears`] for the rounding of its sums (f32 sums of a few terms are within
+/// a few 10⁻⁷ of their value).
+const CLEARS_ROUNDING: f32 = 1e-5;
 
 /// ‖(x, y)‖_p = (|x|^p + |y|^p)^(1/p) for p ≥ 1, scaled by the larger magnitude so no power overflows.
 fn lp_norm2(x: f32, y: f32, p: f32) -> f32 {
@@ -920,6 +937,10 @@ fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> (f32, Excess) {
         .supports
         .iter()
         .map(|h| {
+            // Clear of the support by its bounding box: the term is 0, as lowest_along would find.
+            if sq.clears(h.normal, h.offset + SUPPORT_CLEARANCE) {
+                return 0.0;
+            }
             let e = (sq.lowest_along(h.normal) - h.offset - SUPPORT_CLEARANCE).min(0.0);
             SUPPORT_WEIGHT * n * e * e
         })
@@ -1307,6 +1328,9 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         // ∂e/∂t = n.
         let n_points = points.len() as f32;
         for h in prob.evidence.supports {
+            if base.clears(h.normal, h.offset + SUPPORT_CLEARANCE) {
+                continue;
+            }
             let low = base.lowest_along(h.normal);
             let e = low - h.offset - SUPPORT_CLEARANCE;
             if e >= 0.0 {
