@@ -315,7 +315,7 @@ impl Default for Params {
             sq_min_points: 80,
             sq_max_error: 0.20,
             lm_max_iters: 12,
-            lm_samples: 100,
+            lm_samples: crate::superquadric::BATCHED_SAMPLES as u32,
             sq_scale_prior: 1e-4,
             sq_eps_max: 1.3,
             sq_max_rms: 0.02,

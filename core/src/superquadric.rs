@@ -58,6 +58,10 @@ pub const EPS_RANGE: (f32, f32) = (0.1, 1.9);
 pub const MIN_SCALE: f32 = 0.005;
 /// Most points one fit uses (`lm_samples` is clamped to this).
 pub const MAX_SAMPLES: usize = 128;
+/// Most points whose powers an LM iteration keeps from its cost evaluation for the next Jacobian (the paper's
+/// 100 samples, the default `lm_samples`): a fit of more points takes them again point by point, with the same
+/// results. Kept below [`MAX_SAMPLES`] for the Cortex-M7's stack (44 bytes a point).
+pub const BATCHED_SAMPLES: usize = 100;
 /// Parameters of the fit.
 pub const SQ_PARAMS: usize = 11;
 
@@ -268,7 +272,7 @@ impl Superquadric {
 
     /// The signed distance d = (G − 1)·k at `l` (powers `pw`), the unit normal, and k = 1/‖∇G‖ (or ‖l‖ where
     /// ∇G vanishes): to first order ∂d/∂θ = k·∂G/∂θ for any shape parameter θ (exact on the surface, G = 1).
-    #[inline]
+    #[inline(always)]
     fn distance_parts(&self, l: Vec3, pw: &Powers) -> (f32, Vec3, f32) {
         let [e1, _] = self.eps;
         let [fx, fy, fz] = pw.t;
@@ -294,7 +298,7 @@ impl Superquadric {
     /// The radial distance of `l` from the surface along the ray from the centre, metres (positive outside):
     /// G is homogeneous of degree 1 (G(λl) = λ·G(l)), so the surface point on that ray is l/G and the distance
     /// is ‖l‖·(G − 1)/G, exactly. The screening residual (see [`Problem::radial`]).
-    #[inline]
+    #[inline(always)]
     fn radial_distance(l: Vec3, pw: &Powers) -> f32 {
         let r = linalg::norm(l);
         if pw.g > 1e-6 {
@@ -306,7 +310,7 @@ impl Superquadric {
 
     /// ∂G/∂(a1, a2, a3, ε1, ε2) at local coordinates `l` from the powers `pw` there, analytic (no power), see
     /// [`Superquadric::shape_derivatives`].
-    #[inline]
+    #[inline(always)]
     fn shape_gradient(&self, l: Vec3, pw: &Powers) -> [f32; 5] {
         self.shape_derivatives(l, pw).map_or([0.0; 5], |d| d.dg)
     }
@@ -316,7 +320,7 @@ impl Superquadric {
     /// ∂t/∂a = −2t/(εa), ∂t/∂ε = −t·ln q/ε²; S = tx + ty, P = S^(ε2/ε1), F = P + tz, G = F^(ε1/2):
     /// ∂P = P·(ε2/ε1)·∂S/S + P·ln S·∂(ε2/ε1), ∂G = G·(ε1/2)·∂F/F (+ G·ln F/2 for ε1). Terms capped in
     /// [`term`] have zero derivative. `None` where F or G is not positive and finite.
-    #[inline]
+    #[inline(always)]
     fn shape_derivatives(&self, l: Vec3, pw: &Powers) -> Option<ShapeDerivatives> {
         let [a1, a2, a3] = self.scales;
         let [e1, e2] = self.eps;
@@ -365,7 +369,7 @@ impl Superquadric {
     /// (G − 1)·∂‖∇G‖/‖∇G‖², with ∇G = c·∇F, c = (ε1/2)·G/F, ∇F = (κ·tx/x, κ·ty/y, (2/ε1)·tz/z), κ = (2/ε1)·P/S,
     /// each differentiated from [`Superquadric::shape_derivatives`] (no power). Where ∇G vanishes (the radial
     /// fallback d = (G − 1)·‖l‖) it is ‖l‖·∂G.
-    #[inline]
+    #[inline(always)]
     fn distance_shape_gradient(&self, l: Vec3, pw: &Powers) -> [f32; 5] {
         let Some(sd) = self.shape_derivatives(l, pw) else { return [0.0; 5] };
         let [e1, _] = self.eps;
@@ -996,14 +1000,13 @@ fn same_bits(a: &Superquadric, b: &Superquadric) -> bool {
 
 /// Whether two LM runs are in bit-identical states (then every further iteration of them is the same).
 fn same_run(a: &Run, b: &Run) -> bool {
-    let bits = |r: &Run| {
-        let flat = r.base.into_iter().flatten().chain(r.theta).chain([r.cost, r.lambda]);
-        flat.map(f32::to_bits)
-    };
+    let same = |x: &[f32], y: &[f32]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
     a.cost.to_bits() == b.cost.to_bits()
+        && a.lambda.to_bits() == b.lambda.to_bits()
         && a.iterations == b.iterations
         && a.converged == b.converged
-        && bits(a).eq(bits(b))
+        && same(&a.theta, &b.theta)
+        && a.base.iter().zip(&b.base).all(|(x, y)| same(x, y))
 }
 
 /// Percentile (0–1) of a small sample, by sorting a copy.
@@ -1150,22 +1153,20 @@ impl Normal {
     #[inline]
     fn add_rows<const N: usize>(&mut self, rows: &[(f32, [f32; SQ_PARAMS]); N], n: usize, w: f32) {
         let mut wide = [[0.0f32; NORMAL_LANES]; N];
-        let mut weighted = [[0.0f32; NORMAL_LANES]; N];
         let mut residual = [0.0f32; N];
-        for (((x, wx), res), (r, row)) in wide.iter_mut().zip(&mut weighted).zip(&mut residual).zip(rows).take(n) {
+        for ((x, res), (r, row)) in wide.iter_mut().zip(&mut residual).zip(rows).take(n) {
             if !r.is_finite() || row.iter().any(|d| !d.is_finite()) {
                 continue;
             }
-            for ((d, e), j) in x.iter_mut().zip(wx.iter_mut()).zip(row) {
+            for (d, j) in x.iter_mut().zip(row) {
                 *d = *j;
-                *e = w * j;
             }
             *res = *r;
         }
         for (a, (row, ga)) in self.jtj.iter_mut().zip(self.jtr.iter_mut()).enumerate() {
             let mut acc = *row;
-            for ((x, wx), res) in wide.iter().zip(&weighted).zip(&residual) {
-                let wa = wx.get(a).copied().unwrap_or(0.0);
+            for (x, res) in wide.iter().zip(&residual) {
+                let wa = w * x.get(a).copied().unwrap_or(0.0);
                 *ga += wa * res;
                 for (y, jb) in acc.iter_mut().zip(x) {
                     *y += wa * jb;
@@ -1200,7 +1201,7 @@ impl Perturbed {
     }
 
     /// The radial distance at `l` (powers `pw`, G > 0) with its exact analytic Jacobian row.
-    #[inline]
+    #[inline(always)]
     fn radial_row(&self, l: Vec3, pw: &Powers) -> (f32, [f32; SQ_PARAMS]) {
         let (_, n, k) = self.base.distance_parts(l, pw);
         let mut row = [0.0f32; SQ_PARAMS];
@@ -1260,7 +1261,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
     let mut current = run.cost;
     let mut lambda = run.lambda;
     // The powers of the last accepted candidate at every point: the next Jacobian is taken at that same model.
-    let mut kept = [Powers::default(); MAX_SAMPLES];
+    let mut kept = [Powers::default(); BATCHED_SAMPLES];
     let mut kept_model: Option<Superquadric> = None;
     // The extent excess of that candidate (the next Jacobian's, when it is that model).
     let mut kept_excess: Option<Excess> = None;
@@ -1518,13 +1519,16 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     // iterations to the same state: it takes that state instead of running them again.
     for (count, until) in SCREEN_RUNGS {
         let Some(rung) = runs.get_mut(..count) else { continue };
-        let mut twin = [None; GUESSES];
+        // The earlier twin of each guess (its own index when it has none), bytes to keep the stack small.
+        let mut twin = [0u8; GUESSES];
         for (i, t) in twin.iter_mut().enumerate().take(rung.len()) {
             let this = rung.get(i);
-            *t = (0..i).find(|&j| rung.get(j).zip(this).is_some_and(|(a, b)| same_run(a, b)));
+            let found = (0..i).find(|&j| rung.get(j).zip(this).is_some_and(|(a, b)| same_run(a, b)));
+            *t = found.unwrap_or(i) as u8;
         }
         for i in 0..rung.len() {
-            let earlier = twin.get(i).copied().flatten().and_then(|j| rung.get(j).copied());
+            let j = twin.get(i).map_or(i, |&j| usize::from(j));
+            let earlier = if j < i { rung.get(j).copied() } else { None };
             let Some(run) = rung.get_mut(i) else { continue };
             match earlier {
                 Some(done) => *run = done,
@@ -1546,16 +1550,14 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     // beyond its support, which the visible points alone do not forbid), the next guesses in cost order get
     // their turn, up to `FINISHED_CANDIDATES` in all. The first acceptable one wins, else the cheapest.
     let mut best: Option<(f32, Fit)> = None;
-    let mut finished: [Option<(Run, usize)>; FINISHED_CANDIDATES] = [None; FINISHED_CANDIDATES];
+    // A second candidate bit-identical to the first (and with as many free-front rounds) ends as the first did.
+    let twins = matches!(runs.get(..2), Some([a, b]) if same_run(a, b)) && FRONT_CANDIDATES >= 2;
     for (k, run) in runs.iter_mut().take(FINISHED_CANDIDATES).filter(|r| r.cost.is_finite()).enumerate() {
         // The free-front rounds are for the most promising candidates only (they cost as much as the finish).
         let rounds = if k < FRONT_CANDIDATES { FRONT_ROUNDS } else { 0 };
         // A twin of a candidate already finished (and refused) ends the same way: refused, at the same cost.
-        if finished.iter().flatten().any(|(r, n)| *n == rounds && same_run(r, run)) {
+        if k == 1 && twins {
             continue;
-        }
-        if let Some(slot) = finished.get_mut(k) {
-            *slot = Some((*run, rounds));
         }
         let fit = finish(&prob, run, FINISH_ITERS.min(params.lm_max_iters), rounds, params);
         if fit.accepted {
