@@ -1615,12 +1615,16 @@ fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, par
     levenberg_marquardt(prob, run, iterations, params);
     let mut extra = [[0.0f32; 3]; MAX_FRONT_PROBES];
     let mut n_extra = 0;
+    // How the camera saw the final shape, when the last round looked at it and found nothing to add.
+    let mut final_view = None;
     if let Some((frame, _)) = prob.evidence.view {
         for _ in 0..rounds {
             let sq = model(&run.theta, &run.base);
             let room = extra.get_mut(n_extra..).unwrap_or(&mut []);
-            let added = front_view(&sq, frame, params, room).written;
+            let view = front_view(&sq, frame, params, room);
+            let added = view.written;
             if added == 0 {
+                final_view = Some(view);
                 break;
             }
             n_extra += added;
@@ -1633,7 +1637,7 @@ fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, par
     let judged = Problem { extra: extra.get(..n_extra).unwrap_or(&[]), ..*prob };
     let sq = model(&run.theta, &run.base);
     let mut fit = Fit { sq, error: sq.error(prob.points), iterations: run.iterations, accepted: false };
-    fit.accepted = is_acceptable(&fit, &judged, params);
+    fit.accepted = accepts(&fit.sq, fit.error, &judged, params, final_view);
     fit
 }
 
@@ -1802,23 +1806,20 @@ pub fn trimmed_rms_distance(sq: &Superquadric, points: &[Vec3], far: f32) -> (f3
 /// Fixed part of the margin of [`stays_within_support`], metres.
 const SUPPORT_MARGIN: f32 = 0.03;
 
-/// The acceptance test: E_sq below `sq_max_error`, trimmed RMS point distance at most `sq_max_rms` and at most
-/// [`OUTLIER_MAX_SHARE`] of the points beyond 2 × `sq_max_rms` (one convex shape describes the instance),
-/// finite and within bounds, every half-axis at most 1.5 × half the diagonal of the support's [`robust_box`],
-/// the centre inside that box grown by half its diagonal, the shape within its support seen side-on
-/// ([`stays_within_support`]), and the evidence respected ([`respects_evidence`]).
-fn is_acceptable(fit: &Fit, prob: &Problem<'_>, params: &Params) -> bool {
-    accepts(&fit.sq, fit.error, prob, params)
-}
-
 /// Whether `sq` (any superquadric, e.g. a track's smoothed state) passes the acceptance test of a fit to
 /// `points` under `evidence`: the map shows a smoothed state only when this frame's evidence allows it.
 pub fn is_consistent(sq: &Superquadric, points: &[Vec3], evidence: &Evidence<'_>, params: &Params) -> bool {
     let prob = Problem::new(points, evidence, params);
-    accepts(sq, sq.error(points), &prob, params)
+    accepts(sq, sq.error(points), &prob, params, None)
 }
 
-fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params) -> bool {
+/// The acceptance test of `sq` with E_sq `error` on `prob`: E_sq below `sq_max_error`, trimmed RMS point
+/// distance at most `sq_max_rms` and at most [`OUTLIER_MAX_SHARE`] of the points beyond 2 × `sq_max_rms` (one
+/// convex shape describes the instance), finite and within bounds, every half-axis at most 1.5 × half the
+/// diagonal of the support's [`robust_box`], the centre inside that box grown by half its diagonal, the shape
+/// within its support seen side-on ([`stays_within_support`]), the evidence respected ([`respects_evidence`]),
+/// and the camera-facing samples seen as [`front_view`] requires (`seen`: that view when the caller has it).
+fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params, seen: Option<FrontView>) -> bool {
     let fit = Fit { sq: *sq, error, iterations: 0, accepted: false };
     let points = prob.points;
     let (bbox_min, bbox_max) = robust_box(points);
@@ -1841,7 +1842,8 @@ fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params) -
         && stays_within_support(&fit.sq, points, &prob.evidence)
         && respects_evidence(&fit.sq, &prob.evidence, prob.extra)
         && prob.evidence.view.is_none_or(|(frame, _)| {
-            let v = front_view(&fit.sq, frame, params, &mut []);
+            // The view of this very shape when the caller has it (its counts do not depend on the probe room).
+            let v = seen.unwrap_or_else(|| front_view(&fit.sq, frame, params, &mut []));
             v.free as f32 <= FRONT_FREE_MAX_SHARE * v.with_depth as f32
                 && (v.hidden + v.outside) as f32 <= FRONT_UNSEEN_MAX_SHARE * (v.with_depth + v.outside) as f32
         })
