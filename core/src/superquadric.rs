@@ -2015,6 +2015,98 @@ mod gradient_tests {
 }
 
 #[cfg(test)]
+mod work_saving_tests {
+    //! The shortcuts that save the fit work must not change what it computes.
+    use super::*;
+
+    /// A small deterministic generator of values in [0, 1).
+    struct Lcg(u64);
+
+    impl Lcg {
+        fn next(&mut self) -> f32 {
+            self.0 = self.0.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (self.0 >> 40) as f32 / (1u64 << 24) as f32
+        }
+
+        fn range(&mut self, lo: f32, hi: f32) -> f32 {
+            lo + (hi - lo) * self.next()
+        }
+
+        fn unit(&mut self) -> Vec3 {
+            let v = [self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0)];
+            linalg::normalize_or(v, [0.0, 0.0, 1.0])
+        }
+
+        fn shape(&mut self) -> Superquadric {
+            Superquadric {
+                scales: [self.range(0.01, 0.5), self.range(0.01, 0.5), self.range(0.01, 0.5)],
+                eps: [self.range(EPS_RANGE.0, EPS_RANGE.1), self.range(EPS_RANGE.0, EPS_RANGE.1)],
+                centre: [self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(0.3, 3.0)],
+                rotation: linalg::rotation_from_vector(linalg::scale(self.unit(), self.range(0.0, 3.1))),
+            }
+        }
+    }
+
+    /// `clears` claims a support clear only when the support function agrees, down to levels a hair below
+    /// the lowest point; and it does claim it for levels well below (else the shortcut saves nothing).
+    #[test]
+    fn clears_only_what_the_support_function_confirms() {
+        let mut rng = Lcg(7);
+        let (mut claimed, mut well_below) = (0, 0);
+        for _ in 0..20_000 {
+            let sq = rng.shape();
+            let n = rng.unit();
+            let lowest = sq.lowest_along(n);
+            let size = linalg::norm(sq.scales);
+            let level = lowest + rng.range(-1.0, 0.02) * size;
+            if sq.clears(n, level) {
+                claimed += 1;
+                assert!(lowest >= level, "{sq:?} along {n:?}: lowest {lowest} below the cleared level {level}");
+            }
+            // Below the bounding box's lowest point by a margin: always claimed.
+            let box_low = linalg::dot(sq.centre, n)
+                - (0..3)
+                    .map(|k| libm::fabsf(linalg::dot(linalg::column(&sq.rotation, k), n)) * sq.scales[k])
+                    .sum::<f32>();
+            if level < box_low - 1e-3 {
+                well_below += 1;
+                assert!(sq.clears(n, level), "{sq:?} along {n:?}: level {level} well below the box ({box_low})");
+            }
+        }
+        assert!(claimed > 5_000 && well_below > 1_000, "claimed {claimed}, well below {well_below}");
+    }
+
+    /// A cost bounded by `beaten` is the same bits as the unbounded one when it comes below it, and at least
+    /// `beaten` when it stops early; the powers it keeps are the unbounded ones when it does not stop.
+    #[test]
+    fn a_bounded_cost_is_the_unbounded_one_below_the_bound() {
+        let mut rng = Lcg(11);
+        let params = Params::default();
+        let evidence = Evidence { supports: &[], free: &[], view: None };
+        for _ in 0..200 {
+            let truth = rng.shape();
+            let mut points = [[0.0f32; 3]; 100];
+            for x in points.iter_mut() {
+                let (p, n) = truth.surface(rng.range(-1.5, 1.5), rng.range(-3.1, 3.1));
+                *x = linalg::add(p, linalg::scale(n, rng.range(-0.01, 0.01)));
+            }
+            let prob = Problem::new(&points, &evidence, &params);
+            let guess = Superquadric { scales: truth.scales.map(|a| a * rng.range(0.8, 1.2)), ..truth };
+            let mut full_powers = [Powers::default(); BATCHED_SAMPLES];
+            let (full, _) = cost_keeping(&guess, &prob, &mut full_powers, f32::INFINITY);
+            assert!(full.is_finite() && full > 0.0);
+            let mut kept = [Powers::default(); BATCHED_SAMPLES];
+            let (above, _) = cost_keeping(&guess, &prob, &mut kept, full * 1.001);
+            assert_eq!(above.to_bits(), full.to_bits());
+            let same = kept.iter().zip(&full_powers).all(|(a, b)| a.g.to_bits() == b.g.to_bits());
+            assert!(same, "the kept powers differ");
+            let (stopped, _) = cost_keeping(&guess, &prob, &mut kept, full * 0.5);
+            assert!(stopped >= full * 0.5, "stopped at {stopped}, bound {}", full * 0.5);
+        }
+    }
+}
+
+#[cfg(test)]
 mod front_view_tests {
     extern crate std;
 
