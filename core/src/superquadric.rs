@@ -1743,10 +1743,11 @@ const GRAZING_COS: f32 = 0.1;
 /// Bisection steps of [`free_probe_depth`] (the chord to 1/1024 of the shape's diagonal).
 const CHORD_STEPS: usize = 10;
 
-/// Whether `sq` stays within the extent of its support `points` (camera frame): the LM's extent constraint
-/// (see the module docs, with the hidden-depth prior) with a looser margin of 3 cm + 15 % of the half-axis.
-pub fn stays_within_support(sq: &Superquadric, points: &[Vec3], evidence: &Evidence<'_>) -> bool {
-    extent_excess(sq, points, hidden_depth(points), evidence, |a| SUPPORT_MARGIN + 0.15 * a)
+/// Whether `sq` stays within the extent of the support points of `prob` (camera frame): the LM's extent
+/// constraint (see the module docs, with the problem's hidden-depth prior) with a looser margin of 3 cm + 15 % of
+/// the half-axis.
+fn stays_within_support(sq: &Superquadric, prob: &Problem<'_>) -> bool {
+    extent_excess(sq, prob.points, prob.hidden, &prob.evidence, |a| SUPPORT_MARGIN + 0.15 * a)
         .metres
         .iter()
         .all(|&e| e <= 0.0)
@@ -1839,7 +1840,7 @@ fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params, s
         && fit.sq.is_within_bounds()
         && centred
         && sized
-        && stays_within_support(&fit.sq, points, &prob.evidence)
+        && stays_within_support(&fit.sq, prob)
         && respects_evidence(&fit.sq, &prob.evidence, prob.extra)
         && prob.evidence.view.is_none_or(|(frame, _)| {
             // The view of this very shape when the caller has it (its counts do not depend on the probe room).
