@@ -237,3 +237,61 @@ fn adhesion_and_semantic_consistency_counted_by_hand() {
     assert_eq!((m.n_adh, m.a_s, m.multi_gaussian_clusters), (1, None, 0));
     assert_eq!(fusion_metrics(std::iter::empty()), Default::default());
 }
+
+/// The annotation stage counts mask hits from the voxels when every voxel slot stands for one instance, and
+/// those counts are the pixel pass's, pair for pair: perfect masks as an id image and as disjoint bit planes
+/// (the shortcut taken) and as bit planes where one mask also covers its neighbour's pixels (not taken).
+#[test]
+fn mask_hits_from_voxels_are_the_pixel_counts() {
+    use m2smap::masks::{FrameMasks, Pixels};
+    use m2smap_core::annotate::{count_hits, hits_of, MaskHit};
+    for name in ["tabletop", "clutter", "kitchen"] {
+        let scene = Scene::named(name).unwrap();
+        let frame = scene.render(0, Some(1));
+        let ids_masks = scene.perfect_masks(&frame, &mut LabelTable::default());
+        let Pixels::Ids(ids) = &ids_masks.pixels else { panic!("perfect masks are an id image") };
+        let plane = m2smap_core::MaskSet::plane_bytes(ids_masks.width, ids_masks.height);
+        let mut bits = vec![0u8; plane * ids_masks.instances.len()];
+        for (k, inst) in ids_masks.instances.iter().enumerate() {
+            for (i, _) in ids.iter().enumerate().filter(|(_, &id)| id == inst.id) {
+                bits[k * plane + i / 8] |= 1 << (i % 8);
+            }
+        }
+        let disjoint = FrameMasks { pixels: Pixels::Bits(bits.clone()), ..ids_masks.clone() };
+        // Instance 0 also covers instance 1's pixels.
+        let (first, rest) = bits.split_at_mut(plane);
+        first.iter_mut().zip(&rest[..plane]).for_each(|(a, b)| *a |= b);
+        let overlapping = FrameMasks { pixels: Pixels::Bits(bits), ..ids_masks.clone() };
+        let few = ids_masks.instances.len() <= 7;
+        for (masks, shortcut) in [(&ids_masks, few), (&disjoint, few), (&overlapping, false)] {
+            let mut storage = bytemuck::zeroed_box::<HostStorage>();
+            let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+            let view = frame.frame.view(&scene.camera);
+            let checked = mapper.check(view, Some(masks.view())).unwrap();
+            mapper.stage_voxels(&checked);
+            mapper.stage_supervoxels();
+            mapper.stage_gaussians(&checked);
+            let split = masks.view();
+            // The same masks under another instance list: the pixel pass.
+            let copied = masks.instances.clone();
+            let by_pixels_masks = m2smap_core::MaskSet { instances: &copied, ..split };
+            let params = *mapper.params();
+            let zero = <MaskHit as bytemuck::Zeroable>::zeroed();
+            let (mut fast, mut slow) = (vec![zero; 4096], vec![zero; 4096]);
+            let args = (checked.frame(), mapper.voxels(), mapper.voxel_slots(), mapper.gaussians());
+            let a = count_hits(args.0, &split, Some(&split), args.1, args.2, args.3, &mut fast, &params);
+            let b = count_hits(args.0, &by_pixels_masks, Some(&split), args.1, args.2, args.3, &mut slow, &params);
+            assert_eq!(a.by_voxels, shortcut, "{name}: shortcut taken");
+            assert!(!b.by_voxels);
+            let mut inside = 0;
+            for g in 0..mapper.gaussians().len() {
+                for k in 0..masks.instances.len() {
+                    assert_eq!(hits_of(&fast, g, k), hits_of(&slow, g, k), "{name}: Gaussian {g}, instance {k}");
+                    inside += hits_of(&slow, g, k);
+                }
+            }
+            assert!(inside > 1000, "{name}: {inside} points inside masks");
+            assert_eq!((a.hit_pairs, a.hit_overflows), (b.hit_pairs, b.hit_overflows));
+        }
+    }
+}

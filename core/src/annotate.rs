@@ -60,6 +60,8 @@ pub struct AnnotateStats {
     pub hit_overflows: u32,
     /// Instances beyond [`MAX_INSTANCES`], ignored.
     pub ignored_instances: u32,
+    /// Whether [`count_hits`] counted from the voxels (no pass over the pixels; the same counts).
+    pub by_voxels: bool,
 }
 
 /// Position of `key` in the table, or of the free slot where it would go; `None` when the table is full.
@@ -119,6 +121,12 @@ pub fn count_hits(
         ..Default::default()
     };
     let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
+    if count_hits_by_voxel(masks, voxel_masks, voxels, gaussians, hits, params) {
+        stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
+        stats.by_voxels = true;
+        return stats;
+    }
+    hits.fill(MaskHit::zeroed());
     let w = frame.width as usize;
     supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
         let Some((_, v)) = v else { return };
@@ -154,6 +162,74 @@ pub fn count_hits(
     });
     stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
     stats
+}
+
+/// [`count_hits`] from the voxels alone, without a pass over the pixels, where that counts exactly the same:
+/// the voxels were split by these masks ([`MaskSet::voxel_slot`]) and every voxel slot stands for one instance
+/// (at most 7 instances; id images with distinct ids; bit planes whose usable instances share no pixel), so all
+/// points of a voxel lie in the same usable instance's mask (or in none) and a voxel adds its point count where
+/// each point added one. Returns false, leaving `hits` to be refilled, where that does not hold: more instances
+/// than slots, repeated ids, overlapping usable bit planes (a pixel counts for both), a voxel at
+/// [`supervoxel::MAX_VOXEL_POINTS`] (it may have refused points the pixel pass still finds), or a full hit table
+/// (which pairs find room depends on the order).
+fn count_hits_by_voxel(
+    masks: &MaskSet<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
+    voxels: &[Voxel],
+    gaussians: &[Gaussian],
+    hits: &mut [MaskHit],
+    params: &Params,
+) -> bool {
+    let Some(split) = voxel_masks else { return false };
+    let instances = masks.instances;
+    if !core::ptr::eq(split.instances, instances) || instances.len() > 7 {
+        return false;
+    }
+    let one_per_slot = match (split.pixels, masks.pixels) {
+        (MaskPixels::IdImage(a), MaskPixels::IdImage(b)) => {
+            core::ptr::eq(a, b)
+                && instances.iter().enumerate().all(|(k, i)| instances.iter().take(k).all(|j| j.id != i.id))
+        }
+        (MaskPixels::BitPlanes(a), MaskPixels::BitPlanes(b)) => {
+            core::ptr::eq(a, b) && !usable_planes_overlap(masks, params)
+        }
+        _ => false,
+    };
+    if !one_per_slot || voxels.iter().any(|v| v.count >= supervoxel::MAX_VOXEL_POINTS) {
+        return false;
+    }
+    for v in voxels {
+        // Slot s ≥ 1 is the usable instance s − 1; slot 0 holds points in no usable instance's mask.
+        let Some(k) = (supervoxel::key_slot(v.key) as usize).checked_sub(1) else { continue };
+        let g = v.gaussian as usize;
+        let (Some(inst), Some(gauss)) = (instances.get(k), gaussians.get(g)) else { continue };
+        if inst.score >= params.min_confidence && boxes_overlap(inst.bbox, gauss.pixel_bbox) {
+            match entry(hits, MaskHit::key_of(g, k)) {
+                Some(h) => h.count += u32::from(v.count),
+                None => return false,
+            }
+        }
+    }
+    true
+}
+
+/// Whether two instances of bit-plane `masks` that pass `min_confidence` share a pixel.
+fn usable_planes_overlap(masks: &MaskSet<'_>, params: &Params) -> bool {
+    let MaskPixels::BitPlanes(bits) = masks.pixels else { return false };
+    let plane = MaskSet::plane_bytes(masks.width, masks.height);
+    let usable: [bool; 7] =
+        core::array::from_fn(|k| masks.instances.get(k).is_some_and(|i| i.score >= params.min_confidence));
+    (0..plane).any(|i| {
+        let mut seen = 0u8;
+        for (k, _) in usable.iter().enumerate().filter(|(_, &u)| u) {
+            let b = bits.get(k * plane + i).copied().unwrap_or(0);
+            if seen & b != 0 {
+                return true;
+            }
+            seen |= b;
+        }
+        false
+    })
 }
 
 /// The best match among `candidates` given a hit counter: (instance index, inside count), maximising s_j · count.

@@ -817,6 +817,12 @@ impl<'s> Mapper<'s> {
         &self.report
     }
 
+    /// The voxel hash table of the last frame (voxel index per slot, for [`crate::annotate::count_hits`] and
+    /// [`crate::supervoxel::for_each_voxel_point`] outside the mapper).
+    pub fn voxel_slots(&self) -> &[u16] {
+        self.slots
+    }
+
     /// Voxels of the last frame.
     pub fn voxels(&self) -> &[Voxel] {
         self.voxels.as_slice()
