@@ -219,10 +219,20 @@ fn usable_planes_overlap(masks: &MaskSet<'_>, params: &Params) -> bool {
     let plane = MaskSet::plane_bytes(masks.width, masks.height);
     let usable: [bool; 7] =
         core::array::from_fn(|k| masks.instances.get(k).is_some_and(|i| i.score >= params.min_confidence));
-    (0..plane).any(|i| {
-        let mut seen = 0u8;
+    // Four bytes of every plane at a time.
+    let word = |k: usize, i: usize| {
+        let mut w = [0u8; 4];
+        let start = k * plane + i;
+        let end = (start + 4).min((k + 1) * plane);
+        if let (Some(src), Some(dst)) = (bits.get(start..end), w.get_mut(..end.saturating_sub(start))) {
+            dst.copy_from_slice(src);
+        }
+        u32::from_le_bytes(w)
+    };
+    (0..plane).step_by(4).any(|i| {
+        let mut seen = 0u32;
         for (k, _) in usable.iter().enumerate().filter(|(_, &u)| u) {
-            let b = bits.get(k * plane + i).copied().unwrap_or(0);
+            let b = word(k, i);
             if seen & b != 0 {
                 return true;
             }
