@@ -12,7 +12,7 @@ use bytemuck::Zeroable;
 
 use crate::frame::Frame;
 use crate::gmm::{self, Gaussian};
-use crate::masks::{MaskPixels, MaskSet};
+use crate::masks::{MaskPixels, MaskSet, MASK_SLOTS};
 use crate::params::Params;
 use crate::pool::Bounded;
 use crate::supervoxel::{self, Voxel};
@@ -182,7 +182,7 @@ fn count_hits_by_voxel(
 ) -> bool {
     let Some(split) = voxel_masks else { return false };
     let instances = masks.instances;
-    if !core::ptr::eq(split.instances, instances) || instances.len() > 7 {
+    if !core::ptr::eq(split.instances, instances) || instances.len() > MASK_SLOTS {
         return false;
     }
     let one_per_slot = match (split.pixels, masks.pixels) {
@@ -217,7 +217,7 @@ fn count_hits_by_voxel(
 fn usable_planes_overlap(masks: &MaskSet<'_>, params: &Params) -> bool {
     let MaskPixels::BitPlanes(bits) = masks.pixels else { return false };
     let plane = MaskSet::plane_bytes(masks.width, masks.height);
-    let usable: [bool; 7] =
+    let usable: [bool; MASK_SLOTS] =
         core::array::from_fn(|k| masks.instances.get(k).is_some_and(|i| i.score >= params.min_confidence));
     // Four bytes of every plane at a time.
     let word = |k: usize, i: usize| {

@@ -33,6 +33,9 @@ pub enum MaskPixels<'a> {
     BitPlanes(&'a [u8]),
 }
 
+/// Mask slots of a voxel key ([`MaskSet::voxel_slot`]): slot 1 + k mod 7 for the usable instance k, 0 for none.
+pub const MASK_SLOTS: usize = 7;
+
 /// The instance masks of one frame, borrowed from the caller.
 #[derive(Debug, Clone, Copy)]
 pub struct MaskSet<'a> {
@@ -105,7 +108,7 @@ impl<'a> MaskSet<'a> {
         }
         let i = v as usize * self.width as usize + u as usize;
         let usable = |inst: &Instance| inst.score >= min_confidence;
-        let slot_of = |k: Option<usize>| k.map_or(0, |k| 1 + (k % 7) as u32);
+        let slot_of = |k: Option<usize>| k.map_or(0, |k| 1 + (k % MASK_SLOTS) as u32);
         match self.pixels {
             MaskPixels::IdImage(ids) => match ids.get(i) {
                 Some(&id) if id != 0 => {
