@@ -989,24 +989,31 @@ fn cost_keeping(sq: &Superquadric, prob: &Problem<'_>, kept: &mut [Powers], beat
     (if c.is_finite() { c } else { f32::INFINITY }, ends)
 }
 
+/// Whether two equally long runs of floats are bit for bit the same.
+fn same_floats(a: &[f32], b: &[f32]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// Whether two rotations are bit for bit the same.
+fn same_rotation(a: &Mat3, b: &Mat3) -> bool {
+    a.iter().zip(b).all(|(x, y)| same_floats(x, y))
+}
+
 /// Whether two superquadrics have bit-identical parameters (then every evaluation of them is the same).
 fn same_bits(a: &Superquadric, b: &Superquadric) -> bool {
-    let bits = |q: &Superquadric| {
-        let flat = q.scales.into_iter().chain(q.eps).chain(q.centre).chain(q.rotation.into_iter().flatten());
-        flat.map(f32::to_bits)
-    };
-    bits(a).eq(bits(b))
+    same_floats(&a.scales, &b.scales)
+        && same_floats(&a.eps, &b.eps)
+        && same_floats(&a.centre, &b.centre)
+        && same_rotation(&a.rotation, &b.rotation)
 }
 
 /// Whether two LM runs are in bit-identical states (then every further iteration of them is the same).
 fn same_run(a: &Run, b: &Run) -> bool {
-    let same = |x: &[f32], y: &[f32]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
-    a.cost.to_bits() == b.cost.to_bits()
-        && a.lambda.to_bits() == b.lambda.to_bits()
+    same_floats(&[a.cost, a.lambda], &[b.cost, b.lambda])
         && a.iterations == b.iterations
         && a.converged == b.converged
-        && same(&a.theta, &b.theta)
-        && a.base.iter().zip(&b.base).all(|(x, y)| same(x, y))
+        && same_floats(&a.theta, &b.theta)
+        && same_rotation(&a.base, &b.base)
 }
 
 /// Percentile (0–1) of a small sample, by sorting a copy.
@@ -1128,28 +1135,12 @@ impl Normal {
     /// Adds residual `r` with Jacobian row `row` and weight `w`; a non-finite row or residual is skipped.
     #[inline]
     fn add(&mut self, row: &[f32; SQ_PARAMS], r: f32, w: f32) {
-        if !r.is_finite() || row.iter().any(|d| !d.is_finite()) {
-            return;
-        }
-        // Twelve lanes (one zero) so the row updates vectorise; the same operations per entry as eleven.
-        let mut wide = [0.0f32; NORMAL_LANES];
-        for (x, d) in wide.iter_mut().zip(row) {
-            *x = *d;
-        }
-        for (a, (ja, ga)) in self.jtj.iter_mut().zip(wide.iter().zip(self.jtr.iter_mut())) {
-            *ga += w * ja * r;
-            let wa = w * ja;
-            for (x, jb) in a.iter_mut().zip(&wide) {
-                *x += wa * jb;
-            }
-        }
+        self.add_rows(&[(r, *row)], 1, w);
     }
-}
 
-impl Normal {
-    /// [`Normal::add`] of the first `n` of `N` rows (residual, Jacobian row) with weight `w`, each entry of JᵀJ
-    /// held while all `N` rows are added to it (in row order, so the same sums as `N` calls of `add`: a skipped
-    /// row adds +0).
+    /// Adds the first `n` of `N` rows (residual, Jacobian row) with weight `w`, each entry of JᵀJ held while all
+    /// its rows are added to it, in row order. A row with a non-finite entry or residual adds +0 (the entries
+    /// start at +0, so the sums are those of leaving it out); twelve lanes (one zero) so the updates vectorise.
     #[inline]
     fn add_rows<const N: usize>(&mut self, rows: &[(f32, [f32; SQ_PARAMS]); N], n: usize, w: f32) {
         let mut wide = [[0.0f32; NORMAL_LANES]; N];
