@@ -126,7 +126,6 @@ pub fn count_hits(
         stats.by_voxels = true;
         return stats;
     }
-    hits.fill(MaskHit::zeroed());
     let w = frame.width as usize;
     supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
         let Some((_, v)) = v else { return };
@@ -168,7 +167,7 @@ pub fn count_hits(
 /// the voxels were split by these masks ([`MaskSet::voxel_slot`]) and every voxel slot stands for one instance
 /// (at most 7 instances; id images with distinct ids; bit planes whose usable instances share no pixel), so all
 /// points of a voxel lie in the same usable instance's mask (or in none) and a voxel adds its point count where
-/// each point added one. Returns false, leaving `hits` to be refilled, where that does not hold: more instances
+/// each point added one. Returns false, with `hits` still empty, where that does not hold: more instances
 /// than slots, repeated ids, overlapping usable bit planes (a pixel counts for both), a voxel at
 /// [`supervoxel::MAX_VOXEL_POINTS`] (it may have refused points the pixel pass still finds), or a full hit table
 /// (which pairs find room depends on the order).
@@ -206,7 +205,10 @@ fn count_hits_by_voxel(
         if inst.score >= params.min_confidence && boxes_overlap(inst.bbox, gauss.pixel_bbox) {
             match entry(hits, MaskHit::key_of(g, k)) {
                 Some(h) => h.count += u32::from(v.count),
-                None => return false,
+                None => {
+                    hits.fill(MaskHit::zeroed());
+                    return false;
+                }
             }
         }
     }
