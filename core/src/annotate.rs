@@ -12,8 +12,9 @@ use bytemuck::Zeroable;
 
 use crate::frame::Frame;
 use crate::gmm::{self, Gaussian};
-use crate::masks::{MaskPixels, MaskSet, MASK_SLOTS};
+use crate::masks::{Instance, MaskPixels, MaskSet, MASK_SLOTS};
 use crate::params::Params;
+use crate::points::PixelWindow;
 use crate::pool::Bounded;
 use crate::supervoxel::{self, Voxel};
 
@@ -103,12 +104,19 @@ fn boxes_overlap(a: [u16; 4], b: [u16; 4]) -> bool {
     a[0] <= b[2] && b[0] <= a[2] && a[1] <= b[3] && b[1] <= a[3]
 }
 
-/// Fills `hits` with the support points of each Gaussian inside each candidate mask.
+/// Fills `hits` with the support points of each Gaussian inside each candidate mask. `masks_within_boxes`:
+/// every sampled point of a usable instance lies in its box (from [`supervoxel::voxelize`]; false when unknown).
+///
+/// Where the voxels were split by these masks, each voxel whose points can belong to one instance only adds its
+/// point count at once ([`voxel_owner`]); the points of the other voxels are counted one by one, over the pixels
+/// of their Gaussians' boxes only. Otherwise (or when the table fills up, so that which pairs find room would
+/// depend on the order) every point is counted in one pass over the pixels. The counts are the same either way.
 #[allow(clippy::too_many_arguments)]
 pub fn count_hits(
     frame: &Frame<'_>,
     masks: &MaskSet<'_>,
     voxel_masks: Option<&MaskSet<'_>>,
+    masks_within_boxes: bool,
     voxels: &[Voxel],
     slots: &[u16],
     gaussians: &[Gaussian],
@@ -120,23 +128,79 @@ pub fn count_hits(
         ignored_instances: masks.instances.len().saturating_sub(MAX_INSTANCES) as u32,
         ..Default::default()
     };
-    let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
-    if count_hits_by_voxel(masks, voxel_masks, voxels, gaussians, hits, params) {
-        stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
-        stats.by_voxels = true;
-        return stats;
+    if let Some(undecided) =
+        count_hits_by_voxel(masks, voxel_masks, masks_within_boxes, voxels, gaussians, hits, params)
+    {
+        let boxes_decide = undecided.boxes_decide;
+        let only_undecided = |v: &Voxel, g: &Gaussian| {
+            matches!(voxel_owner(v, g, masks.instances, boxes_decide, params), Owner::Unknown)
+        };
+        let overflows = count_point_hits(
+            frame,
+            masks,
+            voxel_masks,
+            voxels,
+            slots,
+            gaussians,
+            hits,
+            params,
+            undecided.window,
+            only_undecided,
+        );
+        if overflows == 0 {
+            stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
+            stats.by_voxels = true;
+            return stats;
+        }
+        hits.fill(MaskHit::zeroed());
     }
+    stats.hit_overflows = count_point_hits(
+        frame,
+        masks,
+        voxel_masks,
+        voxels,
+        slots,
+        gaussians,
+        hits,
+        params,
+        PixelWindow::WHOLE,
+        |_, _| true,
+    );
+    stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
+    stats
+}
+
+/// Adds the points of `window` whose voxel passes `counted` to `hits`, one by one (the pixel pass); returns the
+/// hits that found no room in the table.
+#[allow(clippy::too_many_arguments)]
+fn count_point_hits(
+    frame: &Frame<'_>,
+    masks: &MaskSet<'_>,
+    voxel_masks: Option<&MaskSet<'_>>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    gaussians: &[Gaussian],
+    hits: &mut [MaskHit],
+    params: &Params,
+    window: PixelWindow,
+    counted: impl Fn(&Voxel, &Gaussian) -> bool,
+) -> u32 {
+    if window.u0 > window.u1 || window.v0 > window.v1 {
+        return 0;
+    }
+    let mut overflows = 0;
+    let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
     let w = frame.width as usize;
-    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
+    supervoxel::for_each_voxel_point_in(frame, params, voxel_masks, voxels, slots, window, |p, v| {
         let Some((_, v)) = v else { return };
         let g = v.gaussian as usize;
-        let Some(gauss) = gaussians.get(g) else { return };
+        let Some(gauss) = gaussians.get(g).filter(|gauss| counted(v, gauss)) else { return };
         let mut add = |k: usize| {
             if let Some(inst) = instances.get(k) {
                 if inst.score >= params.min_confidence && boxes_overlap(inst.bbox, gauss.pixel_bbox) {
                     match entry(hits, MaskHit::key_of(g, k)) {
                         Some(h) => h.count += 1,
-                        None => stats.hit_overflows += 1,
+                        None => overflows += 1,
                     }
                 }
             }
@@ -159,60 +223,103 @@ pub fn count_hits(
             }
         }
     });
-    stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
-    stats
+    overflows
 }
 
-/// [`count_hits`] from the voxels alone, without a pass over the pixels, where that counts exactly the same:
-/// the voxels were split by these masks ([`MaskSet::voxel_slot`]) and every voxel slot stands for one instance
-/// (at most 7 instances; id images with distinct ids; bit planes whose usable instances share no pixel), so all
-/// points of a voxel lie in the same usable instance's mask (or in none) and a voxel adds its point count where
-/// each point added one. Returns false, with `hits` still empty, where that does not hold: more instances
-/// than slots, repeated ids, overlapping usable bit planes (a pixel counts for both), a voxel at
-/// [`supervoxel::MAX_VOXEL_POINTS`] (it may have refused points the pixel pass still finds), or a full hit table
-/// (which pairs find room depends on the order).
+/// Which instance the points of a voxel (of Gaussian `gauss`, split by the masks) can belong to.
+enum Owner {
+    /// None that the pixel pass would count for `gauss` (slot 0, or no usable instance of its slot whose box
+    /// meets the Gaussian's).
+    Nobody,
+    /// Every point the pixel pass would count lies in instance `k`.
+    One(usize),
+    /// Two or more: its points must be counted one by one.
+    Unknown,
+}
+
+/// The owner of voxel `v`: slot s ≥ 1 holds points of the usable instances s − 1, s − 1 + 7, … (its class; see
+/// [`MaskSet::voxel_slot`]), slot 0 of no usable instance. The pixel pass counts a point of instance k for
+/// `gauss` when k is usable and its box meets the Gaussian's projected box. So the voxel's counted points lie in
+/// the class members whose box meets `gauss`'s: none, one (the owner) when the class has one usable member, or
+/// — with `boxes_decide`, every sampled point of an instance inside its box, so a point of k lies in both k's
+/// box and `gauss`'s — when one member's box meets `gauss`'s.
+fn voxel_owner(v: &Voxel, gauss: &Gaussian, instances: &[Instance], boxes_decide: bool, params: &Params) -> Owner {
+    let Some(first) = (supervoxel::key_slot(v.key) as usize).checked_sub(1) else { return Owner::Nobody };
+    let class = || {
+        instances
+            .iter()
+            .enumerate()
+            .take(MAX_INSTANCES)
+            .skip(first)
+            .step_by(MASK_SLOTS)
+            .filter(|(_, i)| i.score >= params.min_confidence)
+    };
+    let mut meeting = class().filter(|(_, i)| boxes_overlap(i.bbox, gauss.pixel_bbox));
+    match (meeting.next(), meeting.next()) {
+        (None, _) => Owner::Nobody,
+        (Some((k, _)), None) if boxes_decide || class().nth(1).is_none() => Owner::One(k),
+        _ => Owner::Unknown,
+    }
+}
+
+/// The voxels' part of [`count_hits`] where the voxels were split by these masks ([`MaskSet::voxel_slot`]): every
+/// voxel with an [`Owner::One`] adds its point count to that pair. Returns the pixels of the Gaussians whose
+/// voxels are left to count point by point ([`Owner::Unknown`]), or `None`, with `hits` still empty, where the
+/// voxels cannot count: more than [`MAX_INSTANCES`], repeated ids or overlapping usable bit planes (a pixel counts for both), more than 7
+/// bit-plane instances, a voxel at [`supervoxel::MAX_VOXEL_POINTS`] (it may have refused points the pixel pass
+/// still finds), or a full hit table (which pairs find room depends on the order).
 fn count_hits_by_voxel(
     masks: &MaskSet<'_>,
     voxel_masks: Option<&MaskSet<'_>>,
+    masks_within_boxes: bool,
     voxels: &[Voxel],
     gaussians: &[Gaussian],
     hits: &mut [MaskHit],
     params: &Params,
-) -> bool {
-    let Some(split) = voxel_masks else { return false };
+) -> Option<Undecided> {
+    let split = voxel_masks?;
     let instances = masks.instances;
-    if !core::ptr::eq(split.instances, instances) || instances.len() > MASK_SLOTS {
-        return false;
+    if !core::ptr::eq(split.instances, instances) || instances.len() > MAX_INSTANCES {
+        return None;
     }
-    let one_per_slot = match (split.pixels, masks.pixels) {
+    let (one_per_slot, boxes_decide) = match (split.pixels, masks.pixels) {
         (MaskPixels::IdImage(a), MaskPixels::IdImage(b)) => {
-            core::ptr::eq(a, b)
-                && instances.iter().enumerate().all(|(k, i)| instances.iter().take(k).all(|j| j.id != i.id))
+            let distinct = instances.iter().enumerate().all(|(k, i)| instances.iter().take(k).all(|j| j.id != i.id));
+            (core::ptr::eq(a, b) && distinct, masks_within_boxes)
         }
         (MaskPixels::BitPlanes(a), MaskPixels::BitPlanes(b)) => {
-            core::ptr::eq(a, b) && !usable_planes_overlap(masks, params)
+            (core::ptr::eq(a, b) && instances.len() <= MASK_SLOTS && !usable_planes_overlap(masks, params), false)
         }
-        _ => false,
+        _ => (false, false),
     };
     if !one_per_slot || voxels.iter().any(|v| v.count >= supervoxel::MAX_VOXEL_POINTS) {
-        return false;
+        return None;
     }
+    let mut window = PixelWindow::EMPTY;
     for v in voxels {
-        // Slot s ≥ 1 is the usable instance s − 1; slot 0 holds points in no usable instance's mask.
-        let Some(k) = (supervoxel::key_slot(v.key) as usize).checked_sub(1) else { continue };
         let g = v.gaussian as usize;
-        let (Some(inst), Some(gauss)) = (instances.get(k), gaussians.get(g)) else { continue };
-        if inst.score >= params.min_confidence && boxes_overlap(inst.bbox, gauss.pixel_bbox) {
-            match entry(hits, MaskHit::key_of(g, k)) {
+        let Some(gauss) = gaussians.get(g) else { continue };
+        match voxel_owner(v, gauss, instances, boxes_decide, params) {
+            Owner::Nobody => {}
+            Owner::One(k) => match entry(hits, MaskHit::key_of(g, k)) {
                 Some(h) => h.count += u32::from(v.count),
                 None => {
                     hits.fill(MaskHit::zeroed());
-                    return false;
+                    return None;
                 }
-            }
+            },
+            Owner::Unknown => window = window.union(PixelWindow::from_box(gauss.pixel_bbox)),
         }
     }
-    true
+    Some(Undecided { window, boxes_decide })
+}
+
+/// What [`count_hits_by_voxel`] leaves to the pixel pass.
+struct Undecided {
+    /// The pixels of every Gaussian with an [`Owner::Unknown`] voxel ([`PixelWindow::EMPTY`]: none).
+    window: PixelWindow,
+    /// Whether boxes decide owners ([`voxel_owner`]).
+    boxes_decide: bool,
 }
 
 /// Whether two instances of bit-plane `masks` that pass `min_confidence` share a pixel.

@@ -178,6 +178,8 @@ pub struct Mapper<'s> {
     frames: u32,
     /// Whether the current frame's voxels are split in mask slots.
     slotted: bool,
+    /// Whether every sampled point of a usable instance lay in its instance's box (voxelisation's check).
+    masks_within_boxes: bool,
 }
 
 impl<'s> Mapper<'s> {
@@ -208,6 +210,7 @@ impl<'s> Mapper<'s> {
             report: FrameReport::default(),
             frames: 0,
             slotted: false,
+            masks_within_boxes: false,
         })
     }
 
@@ -227,6 +230,12 @@ impl<'s> Mapper<'s> {
     /// masks (not the segmenter's, which are made from the voxels), in a variant that uses them.
     pub fn uses_mask_slots(&self) -> bool {
         self.slotted
+    }
+
+    /// Whether the last frame's voxels were split by id-image masks and every sampled point of a usable
+    /// instance lay in its instance's box (see [`crate::supervoxel::VoxelStats::mask_pixels_outside_boxes`]).
+    pub fn masks_within_boxes(&self) -> bool {
+        self.masks_within_boxes
     }
 
     /// Validates a frame and its masks without touching any state.
@@ -328,6 +337,8 @@ impl<'s> Mapper<'s> {
             stats.slot_overflows = stats.slot_overflows.saturating_add(refused_slots);
             stats.dropped_points += in_range.saturating_sub(stats.points);
         }
+        self.masks_within_boxes = voxel_masks.is_some_and(|m| matches!(m.pixels, crate::masks::MaskPixels::IdImage(_)))
+            && !stats.mask_pixels_outside_boxes;
         self.report.voxel_range_m = self.params.depth_max;
         supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.params.voxel_resolution);
         self.report.points = in_range;
@@ -430,6 +441,7 @@ impl<'s> Mapper<'s> {
             frame,
             masks,
             voxel_masks,
+            self.masks_within_boxes,
             self.voxels.as_slice(),
             self.slots,
             self.gaussians.as_slice(),

@@ -16,11 +16,23 @@ pub struct Instance {
     pub bbox: [u16; 4],
 }
 
-/// The last id → voxel slot lookup of [`MaskSet::voxel_slot_cached`] (id 0: nothing cached).
+/// The last id → voxel slot lookup of [`MaskSet::voxel_slot_cached`] (id 0: nothing cached), and whether any
+/// looked-up pixel of a usable instance lay outside that instance's bounding box.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct SlotCache {
     id: u16,
     slot: u32,
+    bbox: [u16; 4],
+    outside_box: bool,
+}
+
+impl SlotCache {
+    /// Whether a pixel looked up through this cache belonged to a usable instance (id-image masks) but lay
+    /// outside the instance's `bbox`: its mask then reaches beyond its box, which the voxel count of
+    /// [`crate::annotate::count_hits`] must know.
+    pub fn saw_pixel_outside_box(&self) -> bool {
+        self.outside_box
+    }
 }
 
 /// How the per-pixel masks are stored.
@@ -114,7 +126,12 @@ impl<'a> MaskSet<'a> {
                 Some(&id) if id != 0 => {
                     if cache.id != id {
                         let k = self.instances.iter().position(|inst| inst.id == id && usable(inst));
-                        *cache = SlotCache { id, slot: slot_of(k) };
+                        let bbox = k.and_then(|k| self.instances.get(k)).map_or([0; 4], |inst| inst.bbox);
+                        *cache = SlotCache { id, slot: slot_of(k), bbox, outside_box: cache.outside_box };
+                    }
+                    if cache.slot != 0 {
+                        let [x0, y0, x1, y1] = cache.bbox;
+                        cache.outside_box |= u < x0 || u > x1 || v < y0 || v > y1;
                     }
                     cache.slot
                 }

@@ -324,6 +324,9 @@ pub struct VoxelStats {
     pub dropped_points: u32,
     /// Inserts refused because every hash slot was taken.
     pub slot_overflows: u32,
+    /// Whether a sampled point of a usable instance (id-image masks) lay outside that instance's bounding box
+    /// ([`SlotCache::saw_pixel_outside_box`]).
+    pub mask_pixels_outside_boxes: bool,
 }
 
 /// Builds the voxel sums of `frame` (stage 1 and the first half of stage 2).
@@ -388,6 +391,7 @@ pub fn voxelize(
         v.sum = linalg::add(v.sum, linalg::sub(p.xyz, corner));
         v.add_colour(p.rgb);
     });
+    stats.mask_pixels_outside_boxes = slot_cache.saw_pixel_outside_box();
     stats
 }
 
