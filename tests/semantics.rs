@@ -325,9 +325,23 @@ fn mask_hits_from_voxels_are_the_pixel_counts() {
             let zero = <MaskHit as bytemuck::Zeroable>::zeroed();
             let (mut fast, mut slow) = (vec![zero; 4096], vec![zero; 4096]);
             let args = (checked.frame(), mapper.voxels(), mapper.voxel_slots(), mapper.gaussians());
-            let a = count_hits(args.0, &split, Some(&split), within, args.1, args.2, args.3, &mut fast, &params);
-            let b =
-                count_hits(args.0, &by_pixels_masks, Some(&split), within, args.1, args.2, args.3, &mut slow, &params);
+            // The fast count revisits the points from voxelisation's list, the pixel pass samples them again.
+            let listed = mapper.sampled_points();
+            assert!(listed.is_some(), "{name}: the host profile lists the sampled points");
+            let a =
+                count_hits(args.0, &split, Some(&split), within, args.1, args.2, listed, args.3, &mut fast, &params);
+            let b = count_hits(
+                args.0,
+                &by_pixels_masks,
+                Some(&split),
+                within,
+                args.1,
+                args.2,
+                None,
+                args.3,
+                &mut slow,
+                &params,
+            );
             assert_eq!(a.by_voxels, shortcut, "{name}: shortcut taken");
             assert!(!b.by_voxels);
             let mut inside = 0;
@@ -342,7 +356,7 @@ fn mask_hits_from_voxels_are_the_pixel_counts() {
             // Boxes that do not hold their masks must not be trusted: with traded boxes they would miscount.
             if std::ptr::eq(masks, &swapped) {
                 let mut wrong = vec![zero; 4096];
-                count_hits(args.0, &split, Some(&split), true, args.1, args.2, args.3, &mut wrong, &params);
+                count_hits(args.0, &split, Some(&split), true, args.1, args.2, None, args.3, &mut wrong, &params);
                 let differs = (0..mapper.gaussians().len())
                     .any(|g| (0..masks.instances.len()).any(|k| hits_of(&wrong, g, k) != hits_of(&slow, g, k)));
                 assert!(differs, "{name}: traded boxes, trusted, count as the pixel pass does");

@@ -16,7 +16,7 @@ use crate::masks::{Instance, MaskPixels, MaskSet, MASK_SLOTS};
 use crate::params::Params;
 use crate::points::PixelWindow;
 use crate::pool::Bounded;
-use crate::supervoxel::{self, Voxel};
+use crate::supervoxel::{self, SampledPoint, Voxel};
 
 /// Largest number of instances per frame that annotation considers (the instance index is stored in 8 bits);
 /// further instances are ignored and counted.
@@ -119,6 +119,7 @@ pub fn count_hits(
     masks_within_boxes: bool,
     voxels: &[Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     gaussians: &[Gaussian],
     hits: &mut [MaskHit],
     params: &Params,
@@ -141,6 +142,7 @@ pub fn count_hits(
             voxel_masks,
             voxels,
             slots,
+            sampled,
             gaussians,
             hits,
             params,
@@ -160,6 +162,7 @@ pub fn count_hits(
         voxel_masks,
         voxels,
         slots,
+        sampled,
         gaussians,
         hits,
         params,
@@ -179,6 +182,7 @@ fn count_point_hits(
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     gaussians: &[Gaussian],
     hits: &mut [MaskHit],
     params: &Params,
@@ -191,7 +195,7 @@ fn count_point_hits(
     let mut overflows = 0;
     let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
     let w = frame.width as usize;
-    supervoxel::for_each_voxel_point_in(frame, params, voxel_masks, voxels, slots, window, |p, v| {
+    supervoxel::for_each_voxel_point_in(frame, params, voxel_masks, voxels, slots, sampled, window, |p, v| {
         let Some((_, v)) = v else { return };
         let g = v.gaussian as usize;
         let Some(gauss) = gaussians.get(g).filter(|gauss| counted(v, gauss)) else { return };
@@ -422,6 +426,7 @@ pub fn cut_along_masks(
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &mut [Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     scratch: &mut [u16],
     gaussians: &mut Bounded<'_, Gaussian>,
     hits: &[MaskHit],
@@ -450,7 +455,7 @@ pub fn cut_along_masks(
     inside.fill(0);
     {
         let gauss = gaussians.as_slice();
-        supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
+        supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, sampled, |p, v| {
             let Some((vi, g)) = v.and_then(|(vi, v)| gauss.get(v.gaussian as usize).map(|g| (vi, g))) else { return };
             let Some(cut) = (g.owner as usize).checked_sub(1).and_then(|c| cuts.get(c)) else { return };
             if masks.contains(cut.instance as usize, p.u, p.v) {
@@ -494,7 +499,16 @@ pub fn cut_along_masks(
         g.owner = 0;
     }
     if made > 0 {
-        gmm::recompute_statistics(frame, voxel_masks, voxels, slots, scratch, gaussians.as_mut_slice(), params);
+        gmm::recompute_statistics(
+            frame,
+            voxel_masks,
+            voxels,
+            slots,
+            sampled,
+            scratch,
+            gaussians.as_mut_slice(),
+            params,
+        );
     }
     made
 }

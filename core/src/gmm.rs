@@ -31,7 +31,7 @@ use crate::linalg::{self, Moments, Sym3, Vec3};
 use crate::masks::MaskSet;
 use crate::params::Params;
 use crate::pool::Bounded;
-use crate::supervoxel::{self, Supervoxel, Voxel, DROPPED};
+use crate::supervoxel::{self, SampledPoint, Supervoxel, Voxel, DROPPED};
 
 /// One refined Gaussian component of C_g.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
@@ -124,6 +124,8 @@ pub struct GmmPools<'a, 'b> {
     pub voxels: &'a mut [Voxel],
     /// The voxel hash slots.
     pub slots: &'a [u16],
+    /// Voxelisation's list of the sampled points, when complete ([`supervoxel::for_each_voxel_point`]).
+    pub sampled: Option<&'a [SampledPoint]>,
     /// Voxel order scratch (at least as long as `voxels`).
     pub order: &'a mut [u16],
     /// Supervoxels of stage 2.
@@ -141,7 +143,7 @@ pub fn refine(
     voxel_masks: Option<&MaskSet<'_>>,
     params: &Params,
 ) -> GmmStats {
-    let GmmPools { voxels, slots, order, supervoxels, stack, gaussians } = pools;
+    let GmmPools { voxels, slots, sampled, order, supervoxels, stack, gaussians } = pools;
     let mut stats = GmmStats::default();
     gaussians.clear();
     stack.clear();
@@ -170,7 +172,7 @@ pub fn refine(
         }
     }
 
-    point_statistics(frame, voxel_masks, voxels, slots, gaussians.as_mut_slice(), params);
+    point_statistics(frame, voxel_masks, voxels, slots, sampled, gaussians.as_mut_slice(), params);
     stats
 }
 
@@ -201,10 +203,11 @@ pub fn point_statistics(
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     gaussians: &mut [Gaussian],
     params: &Params,
 ) {
-    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
+    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, sampled, |p, v| {
         let Some(g) = v.and_then(|(_, v)| gaussians.get_mut(v.gaussian as usize)) else { return };
         let d = linalg::sub(p.xyz, g.mean);
         let c = &mut g.covariance;
@@ -235,11 +238,13 @@ pub fn point_statistics(
 
 /// Recomputes every Gaussian's statistics after voxels changed Gaussian: groups the voxel indices by Gaussian in
 /// `order`, then [`voxel_statistics`] per Gaussian and one [`point_statistics`] pass.
+#[allow(clippy::too_many_arguments)]
 pub fn recompute_statistics(
     frame: &Frame<'_>,
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     order: &mut [u16],
     gaussians: &mut [Gaussian],
     params: &Params,
@@ -263,7 +268,7 @@ pub fn recompute_statistics(
         }
         start = end;
     }
-    point_statistics(frame, voxel_masks, voxels, slots, gaussians, params);
+    point_statistics(frame, voxel_masks, voxels, slots, sampled, gaussians, params);
 }
 
 /// Weighted voxel-centroid moments of the range, and its point count.

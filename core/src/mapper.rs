@@ -171,6 +171,10 @@ pub struct Mapper<'s> {
     tracker: Tracker<'s>,
     sq_points: &'s mut [Vec3],
     sq_points_peak: usize,
+    /// Voxelisation's list of the frame's sampled points ([`supervoxel::SampledPoint`]).
+    sampled: Bounded<'s, supervoxel::SampledPoint>,
+    /// Whether `sampled` lists every sampled point of the current frame over its depth range.
+    sampled_complete: bool,
     /// Flat clusters of this frame that are not bounded planes: support candidates of the superquadrics.
     patches: [plane::FlatPatch; plane::MAX_FLAT_PATCHES],
     patches_len: usize,
@@ -205,6 +209,8 @@ impl<'s> Mapper<'s> {
             tracker: Tracker::new(Bounded::new(parts.tracks)),
             sq_points: parts.sq_points,
             sq_points_peak: 0,
+            sampled: Bounded::new(parts.sampled),
+            sampled_complete: false,
             patches: [bytemuck::Zeroable::zeroed(); plane::MAX_FLAT_PATCHES],
             patches_len: 0,
             report: FrameReport::default(),
@@ -230,6 +236,12 @@ impl<'s> Mapper<'s> {
     /// masks (not the segmenter's, which are made from the voxels), in a variant that uses them.
     pub fn uses_mask_slots(&self) -> bool {
         self.slotted
+    }
+
+    /// Voxelisation's list of the current frame's sampled points and their voxels, when it holds all of them
+    /// (for [`supervoxel::for_each_voxel_point`]).
+    pub fn sampled_points(&self) -> Option<&[supervoxel::SampledPoint]> {
+        Some(self.sampled.as_slice()).filter(|_| self.sampled_complete)
     }
 
     /// Whether the last frame's voxels were split by id-image masks and every sampled point of a usable
@@ -318,8 +330,14 @@ impl<'s> Mapper<'s> {
         self.params.depth_max = self.depth_max;
         self.slotted = checked.masks.is_some() && self.params.mask_consistent();
         let voxel_masks = self.voxel_masks(checked);
-        let mut stats =
-            supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
+        let mut stats = supervoxel::voxelize(
+            &checked.frame,
+            &self.params,
+            voxel_masks.as_ref(),
+            &mut self.voxels,
+            self.slots,
+            &mut self.sampled,
+        );
         // A full pool: the voxels again over nearer ranges ([`VOXEL_RANGE_CUT`]); every later stage of this frame
         // sees the same range (`finish_frame` restores it), so a point beyond it belongs to no voxel anywhere.
         let (in_range, refused, refused_slots) =
@@ -329,14 +347,21 @@ impl<'s> Mapper<'s> {
             cuts += 1;
             let near = self.params.depth_min;
             self.params.depth_max = near + (self.params.depth_max - near) * VOXEL_RANGE_CUT;
-            stats =
-                supervoxel::voxelize(&checked.frame, &self.params, voxel_masks.as_ref(), &mut self.voxels, self.slots);
+            stats = supervoxel::voxelize(
+                &checked.frame,
+                &self.params,
+                voxel_masks.as_ref(),
+                &mut self.voxels,
+                self.slots,
+                &mut self.sampled,
+            );
         }
         if cuts > 0 {
             self.voxels.add_overflows(refused);
             stats.slot_overflows = stats.slot_overflows.saturating_add(refused_slots);
             stats.dropped_points += in_range.saturating_sub(stats.points);
         }
+        self.sampled_complete = self.sampled.capacity() > 0 && self.sampled.usage().overflow_events == 0;
         self.masks_within_boxes = voxel_masks.is_some_and(|m| matches!(m.pixels, crate::masks::MaskPixels::IdImage(_)))
             && !stats.mask_pixels_outside_boxes;
         self.report.voxel_range_m = self.params.depth_max;
@@ -375,6 +400,7 @@ impl<'s> Mapper<'s> {
             GmmPools {
                 voxels: self.voxels.as_mut_slice(),
                 slots: self.slots,
+                sampled: Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
                 order: self.scratch,
                 supervoxels: self.supervoxels.as_mut_slice(),
                 stack: &mut self.stack,
@@ -413,6 +439,7 @@ impl<'s> Mapper<'s> {
                 voxel_masks.as_ref(),
                 self.voxels.as_mut_slice(),
                 self.slots,
+                Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
                 self.scratch,
                 &mut self.gaussians,
                 self.mask_hits,
@@ -444,6 +471,7 @@ impl<'s> Mapper<'s> {
             self.masks_within_boxes,
             self.voxels.as_slice(),
             self.slots,
+            Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
             self.gaussians.as_slice(),
             self.mask_hits,
             &self.params,
@@ -527,6 +555,7 @@ impl<'s> Mapper<'s> {
             self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
+            Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
             self.gaussians.as_slice(),
             self.planes.as_mut_slice(),
             &params,
@@ -624,6 +653,7 @@ impl<'s> Mapper<'s> {
                     voxel_masks.as_ref(),
                     self.voxels.as_slice(),
                     self.slots,
+                    Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
                     window,
                     sample,
                 );
@@ -798,6 +828,8 @@ impl<'s> Mapper<'s> {
     /// Closes the frame's accounting and returns its report.
     pub fn finish_frame(&mut self) -> &FrameReport {
         self.frames += 1;
+        // The list holds the points of this frame's (possibly cut) depth range only.
+        self.sampled_complete &= self.params.depth_max == self.depth_max;
         self.params.depth_max = self.depth_max;
         self.report.gmms = self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)).count() as u32;
         let n = self.voxels.len();
@@ -819,8 +851,17 @@ impl<'s> Mapper<'s> {
             self.objects.usage(),
             self.tracker.tracks.usage(),
             PoolUsage { peak: self.sq_points_peak, capacity: self.sq_points.len(), overflow_events: 0 },
+            self.sampled.usage(),
         ];
-        self.report.overflow_events = self.report.pools.iter().map(|p| p.overflow_events).sum();
+        // A full list of sampled points costs time, not data (the passes sample again).
+        self.report.overflow_events = self
+            .report
+            .pools
+            .iter()
+            .zip(PoolId::ALL)
+            .filter(|(_, id)| *id != PoolId::SampledPoints)
+            .map(|(p, _)| p.overflow_events)
+            .sum();
         &self.report
     }
 
@@ -991,6 +1032,7 @@ impl<'s> Mapper<'s> {
             self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
+            self.sampled_points(),
             |p, v| f(p, v.map(|(_, v)| v)),
         );
     }

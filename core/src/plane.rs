@@ -16,7 +16,7 @@ use crate::gmm::{Gaussian, ROLE_PLANE};
 use crate::linalg::{self, Eigen3, Vec3};
 use crate::masks::MaskSet;
 use crate::params::Params;
-use crate::supervoxel::{self, Voxel};
+use crate::supervoxel::{self, SampledPoint, Voxel};
 
 /// Cells per side of a plane's occupancy grid (±2 m around the centroid at g_p = 5 cm).
 pub const PLANE_GRID: usize = 80;
@@ -212,11 +212,13 @@ impl Plane {
 }
 
 /// Marks the occupied cells of every plane from the support points of its plane-role Gaussians.
+#[allow(clippy::too_many_arguments)]
 pub fn fill_cells(
     frame: &Frame<'_>,
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     gaussians: &[Gaussian],
     planes: &mut [Plane],
     params: &Params,
@@ -224,7 +226,7 @@ pub fn fill_cells(
     if planes.is_empty() {
         return;
     }
-    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, |p, v| {
+    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, sampled, |p, v| {
         let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
         if g.role != ROLE_PLANE {
             return;

@@ -21,6 +21,37 @@ pub struct Point {
     pub rgb: [u8; 3],
 }
 
+impl Point {
+    /// The point of pixel (u, v) with raw depth `raw` and colour `rgb` (its three bytes): back-projected with
+    /// the frame's intrinsics. Every pass over the points builds them here, so they are the same bits each time.
+    #[inline]
+    pub fn from_pixel(frame: &Frame<'_>, u: usize, v: usize, raw: u16, rgb: &[u8]) -> Point {
+        let z = frame.metres(raw);
+        Point {
+            u: u as u16,
+            v: v as u16,
+            xyz: frame.intrinsics.unproject(u as f32, v as f32, z),
+            rgb: [
+                rgb.first().copied().unwrap_or(0),
+                rgb.get(1).copied().unwrap_or(0),
+                rgb.get(2).copied().unwrap_or(0),
+            ],
+        }
+    }
+
+    /// The point of pixel (u, v) of `frame` (no range or sample test); `None` outside the image.
+    #[inline]
+    pub fn at(frame: &Frame<'_>, u: usize, v: usize) -> Option<Point> {
+        let w = frame.width as usize;
+        if u >= w {
+            return None;
+        }
+        let i = v * w + u;
+        let (&raw, rgb) = (frame.depth.get(i)?, frame.colour.get(3 * i..3 * i + 3)?);
+        Some(Point::from_pixel(frame, u, v, raw, rgb))
+    }
+}
+
 /// The 32-bit mixing function of the sampler ("lowbias32", a bijection with good avalanche).
 #[inline]
 pub fn mix32(mut x: u32) -> u32 {
@@ -141,7 +172,6 @@ pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow
     if w == 0 || u0 > u1 {
         return;
     }
-    let k = frame.intrinsics;
     let rgb_rows = frame.colour.chunks_exact(w * 3);
     let rows = frame.depth.chunks_exact(w).zip(rgb_rows).enumerate();
     let first_row = window.v0 as usize;
@@ -149,18 +179,7 @@ pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow
     for (v, (row, rgb_row)) in rows.skip(first_row).take(n_rows) {
         let mut emit = |u: usize| {
             let (Some(&raw), Some(rgb)) = (row.get(u), rgb_row.get(3 * u..3 * u + 3)) else { return };
-            let z = frame.metres(raw);
-            let point = Point {
-                u: u as u16,
-                v: v as u16,
-                xyz: k.unproject(u as f32, v as f32, z),
-                rgb: [
-                    rgb.first().copied().unwrap_or(0),
-                    rgb.get(1).copied().unwrap_or(0),
-                    rgb.get(2).copied().unwrap_or(0),
-                ],
-            };
-            f(&point);
+            f(&Point::from_pixel(frame, u, v, raw, rgb));
         };
         let span = row.get(u0..=u1).unwrap_or(&[]);
         if !BLOCKWISE {

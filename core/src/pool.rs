@@ -36,11 +36,14 @@ pub enum PoolId {
     Tracks,
     /// Points sampled for superquadric fits.
     SqPoints,
+    /// Voxelisation's list of the frame's sampled points and their voxels, which spares later passes the
+    /// re-sampling (a full list costs time, not data: the passes then sample again; not in `overflow_events`).
+    SampledPoints,
 }
 
 impl PoolId {
     /// Number of pools.
-    pub const COUNT: usize = 12;
+    pub const COUNT: usize = 13;
     /// All pools in report order.
     pub const ALL: [PoolId; PoolId::COUNT] = [
         PoolId::Voxels,
@@ -55,6 +58,7 @@ impl PoolId {
         PoolId::Objects,
         PoolId::Tracks,
         PoolId::SqPoints,
+        PoolId::SampledPoints,
     ];
 
     /// Snake-case name used in `summary.json` and `memory_budget.md`.
@@ -72,6 +76,7 @@ impl PoolId {
             PoolId::Objects => "objects",
             PoolId::Tracks => "tracks",
             PoolId::SqPoints => "sq_points",
+            PoolId::SampledPoints => "sampled_points",
         }
     }
 }
@@ -126,6 +131,11 @@ impl<'a, T: Copy> Bounded<'a, T> {
         }
         self.len -= 1;
         self.items.get(self.len).copied()
+    }
+
+    /// Entries the pool holds.
+    pub fn capacity(&self) -> usize {
+        self.items.len()
     }
 
     /// Empties the pool and starts a new frame's accounting.

@@ -13,7 +13,7 @@ use crate::mapper::Mapper;
 use crate::objects::Object;
 use crate::plane::Plane;
 use crate::pool::PoolId;
-use crate::supervoxel::{SeedCell, Supervoxel, Voxel};
+use crate::supervoxel::{SampledPoint, SeedCell, Supervoxel, Voxel};
 use crate::track::Track;
 
 /// Depth of the split work stack. The stack never holds more than `gmm_max_depth + 1 ≤ 31` ranges.
@@ -27,7 +27,8 @@ pub const SPLIT_STACK: usize = 64;
 /// - `C`: seed cells; `S`: supervoxels; `G`: Gaussians;
 /// - `M`: mask-hit counters (a hash table: about 2 × the annotated Gaussians); `L`: planes; `O`: objects;
 /// - `T`: superquadric tracks; `Q`: superquadric fit points (objects are sampled `Q / lm_samples` per pass);
-/// - `P`: largest frame, pixels.
+/// - `P`: largest frame, pixels;
+/// - `K`: the frame's sampled points listed by voxelisation (0: none; later passes sample the frame again).
 #[derive(Zeroable)]
 #[repr(C)]
 pub struct Storage<
@@ -42,6 +43,7 @@ pub struct Storage<
     const T: usize,
     const Q: usize,
     const P: usize,
+    const K: usize,
 > {
     pub(crate) voxels: [Voxel; V],
     pub(crate) slots: [u16; H],
@@ -55,6 +57,7 @@ pub struct Storage<
     pub(crate) objects: [Object; O],
     pub(crate) tracks: [Track; T],
     pub(crate) sq_points: [Vec3; Q],
+    pub(crate) sampled: [SampledPoint; K],
 }
 
 /// Mutable views of every pool of one storage.
@@ -83,6 +86,8 @@ pub struct Parts<'a> {
     pub tracks: &'a mut [Track],
     /// Superquadric fit points.
     pub sq_points: &'a mut [Vec3],
+    /// The frame's sampled points and their voxels.
+    pub sampled: &'a mut [SampledPoint],
 }
 
 /// A capacity profile: storage the mapper can run in.
@@ -105,7 +110,8 @@ impl<
         const T: usize,
         const Q: usize,
         const P: usize,
-    > Profile for Storage<V, H, C, S, G, M, L, O, T, Q, P>
+        const K: usize,
+    > Profile for Storage<V, H, C, S, G, M, L, O, T, Q, P, K>
 {
     const MAX_PIXELS: usize = P;
     fn parts(&mut self) -> Parts<'_> {
@@ -124,6 +130,7 @@ impl<
             objects: &mut self.objects,
             tracks: &mut self.tracks,
             sq_points: &mut self.sq_points,
+            sampled: &mut self.sampled,
         }
     }
 }
@@ -140,7 +147,8 @@ impl<
         const T: usize,
         const Q: usize,
         const P: usize,
-    > Storage<V, H, C, S, G, M, L, O, T, Q, P>
+        const K: usize,
+    > Storage<V, H, C, S, G, M, L, O, T, Q, P, K>
 {
     /// Every pool as (pool, capacity, bytes per element), in report order — the rows of `memory_budget.md`.
     pub const POOLS: [(PoolId, usize, usize); PoolId::COUNT] = [
@@ -156,6 +164,7 @@ impl<
         (PoolId::Objects, O, core::mem::size_of::<Object>()),
         (PoolId::Tracks, T, core::mem::size_of::<Track>()),
         (PoolId::SqPoints, Q, core::mem::size_of::<Vec3>()),
+        (PoolId::SampledPoints, K, core::mem::size_of::<SampledPoint>()),
     ];
 
     /// Compile-time check that voxel, supervoxel and Gaussian indices fit `u16` beside the reserved labels.
@@ -174,15 +183,18 @@ impl<
     pub const BYTES: usize = core::mem::size_of::<Self>();
 }
 
-/// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included.
-pub type McuStorage = Storage<8704, 16384, 128, 128, 576, 1024, 8, 32, 32, 256, { 640 * 480 }>;
+/// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included (no room for the
+/// list of sampled points: its passes sample the frame again).
+pub type McuStorage = Storage<8704, 16384, 128, 128, 576, 1024, 8, 32, 32, 256, { 640 * 480 }, 0>;
 
-/// The `host` profile: larger pools for workstation replays (frames up to 1280×1024).
-pub type HostStorage = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }>;
+/// The `host` profile: larger pools for workstation replays (frames up to 1280×1024; the list of sampled points
+/// holds a 15 % sample of the largest frame).
+pub type HostStorage =
+    Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }, { 1280 * 1024 * 3 / 20 + 1024 }>;
 
 /// The `tiny` profile: every pool a few entries, to exercise overflow handling on real frames (robustness
 /// tests); it maps a 640×480 frame badly but never fails.
-pub type TinyStorage = Storage<512, 1024, 8, 8, 32, 64, 2, 4, 2, 128, { 640 * 480 }>;
+pub type TinyStorage = Storage<512, 1024, 8, 8, 32, 64, 2, 4, 2, 128, { 640 * 480 }, 1024>;
 
 /// RAM budget of the `mcu` profile, bytes.
 pub const MCU_BUDGET_BYTES: usize = 512 * 1024;

@@ -283,31 +283,68 @@ pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16, 
     masks.map_or(0, |m| m.voxel_slot_cached(u, v, params.min_confidence, cache))
 }
 
+/// One sampled point as voxelisation met it: its pixel and the voxel it fell into. The list of a frame's points
+/// in pixel order lets every later pass visit them without sampling, back-projecting and hashing them again
+/// ([`for_each_voxel_point`]); a profile without room for it (the `mcu` one) re-derives them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Zeroable)]
+#[repr(C)]
+pub struct SampledPoint {
+    /// Pixel column, pixels.
+    pub u: u16,
+    /// Pixel row, pixels.
+    pub v: u16,
+    /// Index of its voxel, or [`NO_VOXEL`] when it found none (pool or hash full, outside the key range).
+    pub voxel: u16,
+}
+
+/// [`SampledPoint::voxel`] of a point without a voxel.
+pub const NO_VOXEL: u16 = u16::MAX;
+
 /// Calls `f(point, voxel)` for every sampled point of `frame` with the index and record of the voxel it fell
 /// into (`None` when it found no voxel: pool full or outside the key range). `masks` must be the ones the
-/// voxels were made with. The one way every stage after voxelisation revisits the points.
+/// voxels were made with. `sampled`: voxelisation's complete list of this frame's points
+/// ([`SampledPoint`]), else `None` and the points are sampled and hashed again — the same points, voxels and
+/// order either way. The one way every stage after voxelisation revisits the points.
 pub fn for_each_voxel_point(
     frame: &Frame<'_>,
     params: &Params,
     masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
-    for_each_voxel_point_in(frame, params, masks, voxels, slots, points::PixelWindow::WHOLE, f);
+    for_each_voxel_point_in(frame, params, masks, voxels, slots, sampled, points::PixelWindow::WHOLE, f);
 }
 
 /// [`for_each_voxel_point`] over the pixels of `window` only (the same points in the same order as the
 /// whole-image pass gives there).
+#[allow(clippy::too_many_arguments)]
 pub fn for_each_voxel_point_in(
     frame: &Frame<'_>,
     params: &Params,
     masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
     window: points::PixelWindow,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
+    if let Some(list) = sampled {
+        // The list is in pixel order: start at the window's first row, stop after its last.
+        let first = list.partition_point(|s| s.v < window.v0);
+        for s in list.get(first..).unwrap_or(&[]) {
+            if s.v > window.v1 {
+                break;
+            }
+            if s.u < window.u0 || s.u > window.u1 {
+                continue;
+            }
+            let Some(p) = points::Point::at(frame, s.u as usize, s.v as usize) else { continue };
+            f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
+        }
+        return;
+    }
     let r = params.voxel_resolution;
     let mut slot_cache = SlotCache::default();
     points::for_each_point_in(frame, params, window, |p| {
@@ -333,66 +370,90 @@ pub struct VoxelStats {
 /// Sums the sampled points of `frame` into voxels; with `masks`, the points of each instance mask (score ≥
 /// `min_confidence`) and those outside every mask go to separate voxels (mask slots), so no voxel, supervoxel
 /// or Gaussian mixes an object with what it touches (an m2smap extension for the semantic-fusion variants).
+/// Lists every sampled point with its voxel in `sampled` (when it has room; see [`SampledPoint`]).
 pub fn voxelize(
     frame: &Frame<'_>,
     params: &Params,
     masks: Option<&MaskSet<'_>>,
     voxels: &mut Bounded<'_, Voxel>,
     slots: &mut [u16],
+    sampled: &mut Bounded<'_, SampledPoint>,
 ) -> VoxelStats {
     voxels.clear();
     slots.fill(0);
+    sampled.clear();
     let r = params.voxel_resolution;
     let mut stats = VoxelStats::default();
     let max_index = (DROPPED as usize).min(slots.len());
     let mut slot_cache = SlotCache::default();
+    // A profile without a list (capacity 0) skips it, rather than counting a refused entry per point.
+    let listing = sampled.capacity() > 0;
     points::for_each_point(frame, params, |p| {
         stats.points += 1;
-        let Some(key) = voxel_key(p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)) else {
-            stats.dropped_points += 1;
-            return;
-        };
-        let index = match pool::probe(slots, key, |i| voxels.get(i).map(|v| v.key)) {
-            Probe::Found(i) => Some(i),
-            Probe::Vacant(pos) => {
-                let mut v = Voxel::zeroed();
-                v.key = key;
-                v.supervoxel = UNLABELLED;
-                v.gaussian = UNLABELLED;
-                match voxels.push(v) {
-                    Some(i) if i < max_index => {
-                        if let Some(s) = slots.get_mut(pos) {
-                            *s = (i + 1) as u16;
-                        }
-                        Some(i)
-                    }
-                    Some(_) => {
-                        voxels.pop();
-                        None
-                    }
-                    None => None,
-                }
-            }
-            Probe::Full => {
-                stats.slot_overflows += 1;
-                None
-            }
-        };
-        let Some(v) = index.and_then(|i| voxels.get_mut(i)) else {
-            stats.dropped_points += 1;
-            return;
-        };
-        if v.count >= MAX_VOXEL_POINTS {
-            stats.dropped_points += 1;
-            return;
+        let voxel =
+            add_point(p, r, max_index, point_slot(masks, params, p.u, p.v, &mut slot_cache), voxels, slots, &mut stats);
+        if listing {
+            let _ = sampled.push(SampledPoint { u: p.u, v: p.v, voxel: voxel.map_or(NO_VOXEL, |i| i as u16) });
         }
-        let corner = key_corner(key, r);
-        v.count += 1;
-        v.sum = linalg::add(v.sum, linalg::sub(p.xyz, corner));
-        v.add_colour(p.rgb);
     });
     stats.mask_pixels_outside_boxes = slot_cache.saw_pixel_outside_box();
     stats
+}
+
+/// Adds point `p` (mask slot `slot`) to its voxel, made when new; returns the index of the voxel it belongs to
+/// as a later lookup finds it ([`voxel_at`]): also a voxel at [`MAX_VOXEL_POINTS`] that refused it.
+fn add_point(
+    p: &points::Point,
+    r: f32,
+    max_index: usize,
+    slot: u32,
+    voxels: &mut Bounded<'_, Voxel>,
+    slots: &mut [u16],
+    stats: &mut VoxelStats,
+) -> Option<usize> {
+    let Some(key) = voxel_key(p.xyz, r, slot) else {
+        stats.dropped_points += 1;
+        return None;
+    };
+    let index = match pool::probe(slots, key, |i| voxels.get(i).map(|v| v.key)) {
+        Probe::Found(i) => Some(i),
+        Probe::Vacant(pos) => {
+            let mut v = Voxel::zeroed();
+            v.key = key;
+            v.supervoxel = UNLABELLED;
+            v.gaussian = UNLABELLED;
+            match voxels.push(v) {
+                Some(i) if i < max_index => {
+                    if let Some(s) = slots.get_mut(pos) {
+                        *s = (i + 1) as u16;
+                    }
+                    Some(i)
+                }
+                Some(_) => {
+                    voxels.pop();
+                    None
+                }
+                None => None,
+            }
+        }
+        Probe::Full => {
+            stats.slot_overflows += 1;
+            None
+        }
+    };
+    let Some(v) = index.and_then(|i| voxels.get_mut(i)) else {
+        stats.dropped_points += 1;
+        return None;
+    };
+    if v.count >= MAX_VOXEL_POINTS {
+        stats.dropped_points += 1;
+        return index;
+    }
+    let corner = key_corner(key, r);
+    v.count += 1;
+    v.sum = linalg::add(v.sum, linalg::sub(p.xyz, corner));
+    v.add_colour(p.rgb);
+    index
 }
 
 /// Computes every voxel's normal from its 27-neighbourhood of centroids.
