@@ -233,7 +233,7 @@ impl<'s> Mapper<'s> {
     }
 
     /// Whether the last frame's voxels were split in mask slots (see [`Mapper::voxel_masks`]): it came with
-    /// masks (not the segmenter's, which are made from the voxels), in a variant that uses them.
+    /// masks (the geometric segmenter's too), in a variant that uses them.
     pub fn uses_mask_slots(&self) -> bool {
         self.slotted
     }
