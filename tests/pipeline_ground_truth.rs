@@ -177,7 +177,7 @@ fn same_input_gives_identical_output() {
 fn full_pools_drop_and_count_instead_of_panicking() {
     use m2smap_core::{PoolId, Storage};
     // Every pool far too small for a 640x480 frame.
-    type Tiny = Storage<300, 512, 4, 3, 5, 8, 1, 1, 1, 128, { 640 * 480 }, 100>;
+    type Tiny = Storage<300, 512, 4, 3, 5, 8, 1, 1, 1, 128, { 640 * 480 }, 100, 0>;
     let scene = Scene::named("tabletop").unwrap();
     let frame = scene.render(0, Some(2));
     let mut storage = bytemuck::zeroed_box::<Tiny>();
@@ -200,7 +200,7 @@ fn a_full_voxel_pool_drops_the_farthest_points() {
     use m2smap_core::{PoolId, Storage};
     // The tabletop's frame 0 needs more voxels over the full range than this pool holds (measured below), and
     // they fit over a nearer one: the frame is mapped over that range, whole, and the far points are the lost ones.
-    type Short = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536>;
+    type Short = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536, 2048>;
     let scene = Scene::named("tabletop").unwrap();
     let frame = scene.render(0, Some(2));
     let view = frame.frame.view(&scene.camera);
@@ -227,19 +227,20 @@ fn a_full_voxel_pool_drops_the_farthest_points() {
     }
 }
 
-/// Voxelisation's list of sampled points only spares the later passes work: a mapper whose profile lists the
-/// points and one that samples them again give the same maps byte for byte, frame after frame (tracks carry
-/// over), with masks, on a frame mapped over a cut depth range, and with a list too short for the frame.
+/// Voxelisation's list of sampled points and the voxel links only spare the later passes work: a mapper whose
+/// profile lists the points and links the voxels and one that samples and looks them up again give the same
+/// maps byte for byte, frame after frame (tracks carry over), with masks, on a frame mapped over a cut depth
+/// range, and with a list and links too short for the frame.
 #[test]
-fn listing_the_sampled_points_changes_no_map() {
+fn listing_points_and_linking_voxels_changes_no_map() {
     use m2smap::masks::LabelTable;
     use m2smap_core::{PoolId, Profile, Storage};
-    // The host profile's pools, without the list; and with a list too short for any of these frames.
-    type Unlisted = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }, 0>;
-    type ShortList = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }, 4096>;
-    // The range-cut profile of `a_full_voxel_pool_drops_the_farthest_points`, with and without the list.
-    type CutListed = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536>;
-    type CutUnlisted = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 0>;
+    // The host profile's pools without the list and the links; and with both too short for these frames.
+    type Unlisted = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }, 0, 0>;
+    type ShortList = Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }, 4096, 4096>;
+    // The range-cut profile of `a_full_voxel_pool_drops_the_farthest_points`, with and without list and links.
+    type CutListed = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536, 2048>;
+    type CutUnlisted = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 0, 0>;
     fn maps<P: Profile + bytemuck::Zeroable>(scene: &Scene, masked: bool) -> (Vec<Vec<u8>>, Vec<(bool, bool)>) {
         let mut storage = bytemuck::zeroed_box::<P>();
         let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
@@ -248,10 +249,10 @@ fn listing_the_sampled_points_changes_no_map() {
             let frame = scene.render(k, Some(3));
             let masks = masked.then(|| scene.perfect_masks(&frame, &mut LabelTable::default()));
             let r = *mapper.process(frame.frame.view(&scene.camera), masks.as_ref().map(|m| m.view())).unwrap();
-            // A list that fills up is no lost data: not in the frame's overflow events.
+            // A list or links that do not fit are no lost data: not in the frame's overflow events.
             let others: u32 = PoolId::ALL
                 .iter()
-                .filter(|&&id| id != PoolId::SampledPoints)
+                .filter(|&&id| !matches!(id, PoolId::SampledPoints | PoolId::VoxelLinks))
                 .map(|&id| r.pool(id).overflow_events)
                 .sum();
             assert_eq!(r.overflow_events, others);
@@ -260,7 +261,8 @@ fn listing_the_sampled_points_changes_no_map() {
             let cut = r.voxel_range_m < mapper.params().depth_max;
             // (Over a cut range the list holds fewer points than the frame has in its configured range.)
             let complete = list.capacity > 0 && list.overflow_events == 0 && list.peak > 0;
-            listed.push((complete, cut));
+            let linked = r.pool(PoolId::VoxelLinks).peak as u32 == r.voxels && r.voxels > 0;
+            listed.push((complete && linked, cut));
             if !cut {
                 assert!(!complete || list.peak as u32 == r.points);
                 assert_eq!(mapper.sampled_points().is_some(), complete, "the list serves the frame's later users too");

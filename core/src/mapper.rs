@@ -175,6 +175,10 @@ pub struct Mapper<'s> {
     sampled: Bounded<'s, supervoxel::SampledPoint>,
     /// Whether `sampled` lists every sampled point of the current frame over its depth range.
     sampled_complete: bool,
+    /// Each voxel's centroid and neighbours ([`supervoxel::VoxelLinks`]).
+    links: &'s mut [supervoxel::VoxelLinks],
+    /// Whether `links` holds an entry for every voxel of the current frame.
+    linked: bool,
     /// Flat clusters of this frame that are not bounded planes: support candidates of the superquadrics.
     patches: [plane::FlatPatch; plane::MAX_FLAT_PATCHES],
     patches_len: usize,
@@ -211,6 +215,8 @@ impl<'s> Mapper<'s> {
             sq_points_peak: 0,
             sampled: Bounded::new(parts.sampled),
             sampled_complete: false,
+            links: parts.links,
+            linked: false,
             patches: [bytemuck::Zeroable::zeroed(); plane::MAX_FLAT_PATCHES],
             patches_len: 0,
             report: FrameReport::default(),
@@ -365,7 +371,12 @@ impl<'s> Mapper<'s> {
         self.masks_within_boxes = voxel_masks.is_some_and(|m| matches!(m.pixels, crate::masks::MaskPixels::IdImage(_)))
             && !stats.mask_pixels_outside_boxes;
         self.report.voxel_range_m = self.params.depth_max;
-        supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.params.voxel_resolution);
+        self.linked = supervoxel::compute_normals(
+            self.voxels.as_mut_slice(),
+            self.slots,
+            self.links,
+            self.params.voxel_resolution,
+        );
         self.report.points = in_range;
         self.report.dropped_points += stats.dropped_points;
         self.report.voxels = self.voxels.len() as u32;
@@ -375,6 +386,7 @@ impl<'s> Mapper<'s> {
 
     /// Stage 2: supervoxels (second step of [`Mapper::process`]).
     pub fn stage_supervoxels(&mut self) {
+        let n = self.voxels.len();
         let stats = supervoxel::build_supervoxels(
             SupervoxelPools {
                 voxels: self.voxels.as_mut_slice(),
@@ -382,6 +394,7 @@ impl<'s> Mapper<'s> {
                 scratch: self.scratch,
                 seeds: &mut self.seeds,
                 supervoxels: &mut self.supervoxels,
+                links: self.links.get(..n).filter(|_| self.linked),
             },
             &self.params,
         );
@@ -852,14 +865,20 @@ impl<'s> Mapper<'s> {
             self.tracker.tracks.usage(),
             PoolUsage { peak: self.sq_points_peak, capacity: self.sq_points.len(), overflow_events: 0 },
             self.sampled.usage(),
+            PoolUsage {
+                peak: if self.linked { n } else { 0 },
+                capacity: self.links.len(),
+                overflow_events: u32::from(!self.linked && !self.links.is_empty()),
+            },
         ];
-        // A full list of sampled points costs time, not data (the passes sample again).
+        // A full list of sampled points or too few voxel links cost time, not data (looked up again).
+        let lost_data = |id: &PoolId| !matches!(id, PoolId::SampledPoints | PoolId::VoxelLinks);
         self.report.overflow_events = self
             .report
             .pools
             .iter()
             .zip(PoolId::ALL)
-            .filter(|(_, id)| *id != PoolId::SampledPoints)
+            .filter(|(_, id)| lost_data(id))
             .map(|(p, _)| p.overflow_events)
             .sum();
         &self.report

@@ -39,11 +39,14 @@ pub enum PoolId {
     /// Voxelisation's list of the frame's sampled points and their voxels, which spares later passes the
     /// re-sampling (a full list costs time, not data: the passes then sample again; not in `overflow_events`).
     SampledPoints,
+    /// Each voxel's centroid and occupied neighbours ([`crate::supervoxel::VoxelLinks`]), which spare supervoxel
+    /// growth the hash lookups (too small a pool costs time, not data: not in `overflow_events`).
+    VoxelLinks,
 }
 
 impl PoolId {
     /// Number of pools.
-    pub const COUNT: usize = 13;
+    pub const COUNT: usize = 14;
     /// All pools in report order.
     pub const ALL: [PoolId; PoolId::COUNT] = [
         PoolId::Voxels,
@@ -59,6 +62,7 @@ impl PoolId {
         PoolId::Tracks,
         PoolId::SqPoints,
         PoolId::SampledPoints,
+        PoolId::VoxelLinks,
     ];
 
     /// Snake-case name used in `summary.json` and `memory_budget.md`.
@@ -77,6 +81,7 @@ impl PoolId {
             PoolId::Tracks => "tracks",
             PoolId::SqPoints => "sq_points",
             PoolId::SampledPoints => "sampled_points",
+            PoolId::VoxelLinks => "voxel_links",
         }
     }
 }

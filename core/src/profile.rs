@@ -13,7 +13,7 @@ use crate::mapper::Mapper;
 use crate::objects::Object;
 use crate::plane::Plane;
 use crate::pool::PoolId;
-use crate::supervoxel::{SampledPoint, SeedCell, Supervoxel, Voxel};
+use crate::supervoxel::{SampledPoint, SeedCell, Supervoxel, Voxel, VoxelLinks};
 use crate::track::Track;
 
 /// Depth of the split work stack. The stack never holds more than `gmm_max_depth + 1 ≤ 31` ranges.
@@ -28,7 +28,8 @@ pub const SPLIT_STACK: usize = 64;
 /// - `M`: mask-hit counters (a hash table: about 2 × the annotated Gaussians); `L`: planes; `O`: objects;
 /// - `T`: superquadric tracks; `Q`: superquadric fit points (objects are sampled `Q / lm_samples` per pass);
 /// - `P`: largest frame, pixels;
-/// - `K`: the frame's sampled points listed by voxelisation (0: none; later passes sample the frame again).
+/// - `K`: the frame's sampled points listed by voxelisation (0: none; later passes sample the frame again);
+/// - `N`: voxel links (centroid and neighbours per voxel; 0: none, supervoxel growth looks them up again).
 #[derive(Zeroable)]
 #[repr(C)]
 pub struct Storage<
@@ -44,6 +45,7 @@ pub struct Storage<
     const Q: usize,
     const P: usize,
     const K: usize,
+    const N: usize,
 > {
     pub(crate) voxels: [Voxel; V],
     pub(crate) slots: [u16; H],
@@ -58,6 +60,7 @@ pub struct Storage<
     pub(crate) tracks: [Track; T],
     pub(crate) sq_points: [Vec3; Q],
     pub(crate) sampled: [SampledPoint; K],
+    pub(crate) links: [VoxelLinks; N],
 }
 
 /// Mutable views of every pool of one storage.
@@ -88,6 +91,8 @@ pub struct Parts<'a> {
     pub sq_points: &'a mut [Vec3],
     /// The frame's sampled points and their voxels.
     pub sampled: &'a mut [SampledPoint],
+    /// Voxel links.
+    pub links: &'a mut [VoxelLinks],
 }
 
 /// A capacity profile: storage the mapper can run in.
@@ -111,7 +116,8 @@ impl<
         const Q: usize,
         const P: usize,
         const K: usize,
-    > Profile for Storage<V, H, C, S, G, M, L, O, T, Q, P, K>
+        const N: usize,
+    > Profile for Storage<V, H, C, S, G, M, L, O, T, Q, P, K, N>
 {
     const MAX_PIXELS: usize = P;
     fn parts(&mut self) -> Parts<'_> {
@@ -131,6 +137,7 @@ impl<
             tracks: &mut self.tracks,
             sq_points: &mut self.sq_points,
             sampled: &mut self.sampled,
+            links: &mut self.links,
         }
     }
 }
@@ -148,7 +155,8 @@ impl<
         const Q: usize,
         const P: usize,
         const K: usize,
-    > Storage<V, H, C, S, G, M, L, O, T, Q, P, K>
+        const N: usize,
+    > Storage<V, H, C, S, G, M, L, O, T, Q, P, K, N>
 {
     /// Every pool as (pool, capacity, bytes per element), in report order — the rows of `memory_budget.md`.
     pub const POOLS: [(PoolId, usize, usize); PoolId::COUNT] = [
@@ -165,6 +173,7 @@ impl<
         (PoolId::Tracks, T, core::mem::size_of::<Track>()),
         (PoolId::SqPoints, Q, core::mem::size_of::<Vec3>()),
         (PoolId::SampledPoints, K, core::mem::size_of::<SampledPoint>()),
+        (PoolId::VoxelLinks, N, core::mem::size_of::<VoxelLinks>()),
     ];
 
     /// Compile-time check that voxel, supervoxel and Gaussian indices fit `u16` beside the reserved labels.
@@ -184,17 +193,30 @@ impl<
 }
 
 /// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included (no room for the
-/// list of sampled points: its passes sample the frame again).
-pub type McuStorage = Storage<8704, 16384, 128, 128, 576, 1024, 8, 32, 32, 256, { 640 * 480 }, 0>;
+/// list of sampled points or the voxel links: its passes sample the frame again, its growth looks neighbours up).
+pub type McuStorage = Storage<8704, 16384, 128, 128, 576, 1024, 8, 32, 32, 256, { 640 * 480 }, 0, 0>;
 
 /// The `host` profile: larger pools for workstation replays (frames up to 1280×1024; the list of sampled points
-/// holds a 15 % sample of the largest frame).
-pub type HostStorage =
-    Storage<32768, 65536, 1024, 2048, 4096, 8192, 64, 254, 64, 4096, { 1280 * 1024 }, { 1280 * 1024 * 3 / 20 + 1024 }>;
+/// holds a 15 % sample of the largest frame; links for every voxel).
+pub type HostStorage = Storage<
+    32768,
+    65536,
+    1024,
+    2048,
+    4096,
+    8192,
+    64,
+    254,
+    64,
+    4096,
+    { 1280 * 1024 },
+    { 1280 * 1024 * 3 / 20 + 1024 },
+    32768,
+>;
 
 /// The `tiny` profile: every pool a few entries, to exercise overflow handling on real frames (robustness
 /// tests); it maps a 640×480 frame badly but never fails.
-pub type TinyStorage = Storage<512, 1024, 8, 8, 32, 64, 2, 4, 2, 128, { 640 * 480 }, 1024>;
+pub type TinyStorage = Storage<512, 1024, 8, 8, 32, 64, 2, 4, 2, 128, { 640 * 480 }, 1024, 0>;
 
 /// RAM budget of the `mcu` profile, bytes.
 pub const MCU_BUDGET_BYTES: usize = 512 * 1024;

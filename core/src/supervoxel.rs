@@ -456,18 +456,119 @@ fn add_point(
     index
 }
 
-/// Computes every voxel's normal from its 27-neighbourhood of centroids.
-pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], resolution: f32) {
+/// A voxel's centroid and its occupied 26-neighbours, found once per frame by [`compute_normals`] where the
+/// profile has room (the `host` one; 64 bytes per voxel), so that neither the normals nor supervoxel growth look
+/// neighbours up in the hash or centroids up from the sums again ([`for_each_neighbour`] and
+/// [`Voxel::centroid`] give the same indices, order and bits).
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+#[repr(C)]
+pub struct VoxelLinks {
+    /// [`Voxel::centroid`], metres.
+    pub centroid: Vec3,
+    /// Index of the occupied neighbour in each of the 26 directions of [`for_each_neighbour`]'s order (where
+    /// the direction's bit of `occupied` is set).
+    pub neighbours: [u16; 26],
+    /// Bit d set when direction d has a neighbour.
+    pub occupied: u32,
+}
+
+impl VoxelLinks {
+    /// Calls `f(j)` for each occupied neighbour `j`, in direction order.
+    #[inline]
+    pub fn for_each(&self, mut f: impl FnMut(usize)) {
+        let mut bits = self.occupied;
+        while bits != 0 {
+            if let Some(&j) = self.neighbours.get(bits.trailing_zeros() as usize) {
+                f(j as usize);
+            }
+            bits &= bits - 1;
+        }
+    }
+}
+
+/// The key of the neighbour in direction `d` (an index into the 26 neighbour offsets) of the voxel with `key`, as
+/// [`for_each_neighbour`] forms it; `None` outside the key range.
+#[inline]
+fn neighbour_key(key: u32, d: usize) -> Option<u32> {
+    let &([dx, dy, dz], delta) = NEIGHBOURS.get(d)?;
+    let (x, y, z) = unpack(key);
+    let h = VOXEL_GRID_HALF_EXTENT;
+    if -h < x && x < h && -h < y && y < h && 0 < z && z < h {
+        Some(key.wrapping_add_signed(delta))
+    } else {
+        pack(x + dx, y + dy, z + dz, key_slot(key))
+    }
+}
+
+/// Calls `f(j)` for each occupied 26-neighbour `j` of voxel `i` (key `key`), in [`for_each_neighbour`]'s order:
+/// from `links` when given (complete for this frame's voxels), else through the hash.
+#[inline]
+pub fn for_each_linked_neighbour(
+    voxels: &[Voxel],
+    slots: &[u16],
+    links: Option<&[VoxelLinks]>,
+    i: usize,
+    key: u32,
+    f: impl FnMut(usize),
+) {
+    match links.and_then(|l| l.get(i)) {
+        Some(l) => l.for_each(f),
+        None => for_each_neighbour(voxels, slots, key, f),
+    }
+}
+
+/// Fills `links` (at least one per voxel) with each voxel's centroid and neighbours. Direction d of the 26
+/// offsets and direction 25 − d are opposite, so each pair of neighbours is looked up once, from the voxel that
+/// sees the other in one of the 13 directions d ≥ 13.
+fn link_voxels(voxels: &[Voxel], slots: &[u16], links: &mut [VoxelLinks], resolution: f32) {
+    for (l, v) in links.iter_mut().zip(voxels.iter()) {
+        *l = VoxelLinks { centroid: v.centroid(resolution), neighbours: [NO_VOXEL; 26], occupied: 0 };
+    }
+    for (i, v) in voxels.iter().enumerate() {
+        for d in 13..26 {
+            let Some(j) = neighbour_key(v.key, d).and_then(|k| find_voxel(voxels, slots, k)) else { continue };
+            for (a, b, e) in [(i, j, d), (j, i, 25 - d)] {
+                if let Some(l) = links.get_mut(a) {
+                    if let Some(slot) = l.neighbours.get_mut(e) {
+                        *slot = b as u16;
+                        l.occupied |= 1 << e;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Computes every voxel's normal from its 27-neighbourhood of centroids. When `links` holds an entry per
+/// voxel, it first records each voxel's centroid and neighbours there ([`VoxelLinks`]) and returns true.
+pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], links: &mut [VoxelLinks], resolution: f32) -> bool {
+    let linked = links.len() >= voxels.len();
+    if linked {
+        link_voxels(voxels, slots, links, resolution);
+    }
     for i in 0..voxels.len() {
         let Some(&v) = voxels.get(i) else { continue };
-        let c = v.centroid(resolution);
-        let mut m = Moments::about(c);
-        m.add(c, 1.0);
-        for_each_neighbour(voxels, slots, v.key, |j| {
-            if let Some(n) = voxels.get(j) {
-                m.add(n.centroid(resolution), 1.0);
-            }
-        });
+        let mut m;
+        let c;
+        if let (true, Some(own)) = (linked, links.get(i)) {
+            c = own.centroid;
+            m = Moments::about(c);
+            m.add(c, 1.0);
+            own.for_each(|j| {
+                if let Some(n) = links.get(j) {
+                    m.add(n.centroid, 1.0);
+                }
+            });
+        } else {
+            c = v.centroid(resolution);
+            m = Moments::about(c);
+            m.add(c, 1.0);
+            for_each_neighbour(voxels, slots, v.key, |j| {
+                if let Some(n) = voxels.get(j) {
+                    m.add(n.centroid(resolution), 1.0);
+                }
+            });
+        }
         let towards_camera = linalg::normalize_or(linalg::scale(c, -1.0), [0.0, 0.0, -1.0]);
         let mut n = if m.weight >= 3.0 { linalg::sym_eigen(m.covariance()).normal() } else { towards_camera };
         if linalg::dot(n, c) > 0.0 {
@@ -477,6 +578,7 @@ pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], resolution: f32) {
             v.normal = [quantise_unit(n[0]), quantise_unit(n[1]), quantise_unit(n[2])];
         }
     }
+    linked
 }
 
 /// A unit-vector component `x` (clamped to [−1, 1]) in units of 1/32767, rounded half away from zero: the same
@@ -521,11 +623,13 @@ pub struct SupervoxelPools<'a, 'b> {
     pub seeds: &'a mut Bounded<'b, SeedCell>,
     /// Output supervoxels.
     pub supervoxels: &'a mut Bounded<'b, Supervoxel>,
+    /// The frame's [`VoxelLinks`] when [`compute_normals`] recorded them for every voxel.
+    pub links: Option<&'a [VoxelLinks]>,
 }
 
 /// Grows the supervoxels of the voxels (second half of stage 2). Labels every voxel.
 pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> SupervoxelStats {
-    let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels } = pools;
+    let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels, links } = pools;
     let r = params.voxel_resolution;
     let mut stats = SupervoxelStats::default();
     supervoxels.clear();
@@ -582,7 +686,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
                 continue;
             }
             let Some(key) = voxels.get(i).map(|v| v.key) else { continue };
-            for_each_neighbour(voxels, slots, key, |j| {
+            for_each_linked_neighbour(voxels, slots, links, i, key, |j| {
                 if let (Some(v), Some(st)) = (voxels.get(j), scratch.get_mut(j)) {
                     if v.supervoxel == UNLABELLED && *st == 0 {
                         *st = CANDIDATE | round;
@@ -601,9 +705,10 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
                 continue;
             }
             let Some(v) = voxels.get(i).copied() else { continue };
-            let (c, nv, col) = (v.centroid(r), v.unit_normal(), v.colour());
+            let c = links.and_then(|l| l.get(i)).map_or_else(|| v.centroid(r), |l| l.centroid);
+            let (nv, col) = (v.unit_normal(), v.colour());
             let mut best: Option<(f32, u16)> = None;
-            for_each_neighbour(voxels, slots, v.key, |j| {
+            for_each_linked_neighbour(voxels, slots, links, i, v.key, |j| {
                 let (Some(nb), Some(&st)) = (voxels.get(j), scratch.get(j)) else { return };
                 if !is_assigned(nb.supervoxel) || st >= round {
                     return;
@@ -649,7 +754,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
         if v.supervoxel != UNLABELLED {
             continue;
         }
-        for_each_neighbour(voxels, slots, v.key, |j| {
+        for_each_linked_neighbour(voxels, slots, links, i, v.key, |j| {
             if voxels.get(j).is_some_and(|nb| nb.supervoxel == UNLABELLED) {
                 union_find::union(scratch, i, j);
             }
@@ -772,6 +877,50 @@ mod tests {
         for x in [0.0, -0.0, 1.0, -1.0, 2.0, -7.5, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e-40] {
             assert_eq!(quantise_unit(x), reference(x), "x = {x:e}");
         }
+    }
+
+    /// The links hold exactly the neighbours the hash gives, in its order and with the same centroids: a blob
+    /// with holes in two mask slots, at the centre of the key range and against each of its ends.
+    #[test]
+    fn voxel_links_are_the_hash_neighbours() {
+        let mut voxels = [Voxel::zeroed(); 600];
+        let mut slots = [0u16; 2048];
+        let mut n = 0;
+        let corners = [
+            (0, 0, 200),
+            (-VOXEL_GRID_HALF_EXTENT, VOXEL_GRID_HALF_EXTENT - 4, 0),
+            (VOXEL_GRID_HALF_EXTENT - 4, 0, VOXEL_GRID_HALF_EXTENT - 4),
+        ];
+        for ((x0, y0, z0), slot) in corners.into_iter().zip([0u32, 3, 7]) {
+            for k in 0..125i32 {
+                let (x, y, z) = (x0 + k % 5, y0 + k / 5 % 5, z0 + k / 25);
+                // Holes: every third cube of the blob is empty.
+                if (x + 2 * y + 5 * z) % 3 == 0 {
+                    continue;
+                }
+                let Some(key) = pack(x, y, z, slot) else { continue };
+                let Probe::Vacant(pos) = pool::probe(&slots, key, |i| voxels.get(i).map(|v| v.key)) else {
+                    panic!("hash")
+                };
+                voxels[n] =
+                    Voxel { key, count: 1 + (k % 7) as u16, sum: [0.001 * k as f32, 0.002, 0.003], ..Voxel::zeroed() };
+                slots[pos] = (n + 1) as u16;
+                n += 1;
+            }
+        }
+        let voxels = &voxels[..n];
+        let mut links = [VoxelLinks { centroid: [0.0; 3], neighbours: [0; 26], occupied: 0 }; 600];
+        link_voxels(voxels, &slots, &mut links, 0.03);
+        let mut total = 0;
+        for (i, v) in voxels.iter().enumerate() {
+            let (mut by_hash, mut by_links) = (heapless::Vec::<usize, 26>::new(), heapless::Vec::<usize, 26>::new());
+            for_each_neighbour(voxels, &slots, v.key, |j| by_hash.push(j).unwrap());
+            for_each_linked_neighbour(voxels, &slots, Some(&links[..n]), i, v.key, |j| by_links.push(j).unwrap());
+            assert_eq!(by_links, by_hash, "voxel {i}");
+            assert_eq!(links[i].centroid.map(f32::to_bits), v.centroid(0.03).map(f32::to_bits));
+            total += by_hash.len();
+        }
+        assert!(total > 2000, "{total} neighbour pairs");
     }
 
     #[test]
