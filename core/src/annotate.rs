@@ -249,6 +249,13 @@ enum Owner {
 /// box and `gauss`'s — when one member's box meets `gauss`'s.
 fn voxel_owner(v: &Voxel, gauss: &Gaussian, instances: &[Instance], boxes_decide: bool, params: &Params) -> Owner {
     let Some(first) = (supervoxel::key_slot(v.key) as usize).checked_sub(1) else { return Owner::Nobody };
+    if instances.len() <= MASK_SLOTS {
+        // One instance per slot: the class is instance s − 1 alone.
+        return match instances.get(first) {
+            Some(i) if i.score >= params.min_confidence && boxes_overlap(i.bbox, gauss.pixel_bbox) => Owner::One(first),
+            _ => Owner::Nobody,
+        };
+    }
     let class = || {
         instances
             .iter()

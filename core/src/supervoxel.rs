@@ -212,7 +212,7 @@ pub fn key_corner(key: u32, resolution: f32) -> Vec3 {
 }
 
 /// Index of the voxel with `key`, if occupied.
-#[inline]
+#[inline(always)]
 pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
     match pool::probe(slots, key, |i| voxels.get(i).map(|v| v.key)) {
         Probe::Found(i) => Some(i),
@@ -328,23 +328,48 @@ pub fn for_each_voxel_point_in(
     slots: &[u16],
     sampled: Option<&[SampledPoint]>,
     window: points::PixelWindow,
+    f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
+) {
+    // Two functions, each calling `f` once, so that each inlines it (the pass over the pixels is the code
+    // the mcu profile runs, instruction for instruction).
+    match sampled {
+        Some(list) => for_each_listed_point(frame, voxels, list, window, f),
+        None => for_each_resampled_point(frame, params, masks, voxels, slots, window, f),
+    }
+}
+
+/// [`for_each_voxel_point_in`] from voxelisation's list of the frame's points.
+fn for_each_listed_point(
+    frame: &Frame<'_>,
+    voxels: &[Voxel],
+    list: &[SampledPoint],
+    window: points::PixelWindow,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
-    if let Some(list) = sampled {
-        // The list is in pixel order: start at the window's first row, stop after its last.
-        let first = list.partition_point(|s| s.v < window.v0);
-        for s in list.get(first..).unwrap_or(&[]) {
-            if s.v > window.v1 {
-                break;
-            }
-            if s.u < window.u0 || s.u > window.u1 {
-                continue;
-            }
-            let Some(p) = points::Point::at(frame, s.u as usize, s.v as usize) else { continue };
-            f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
+    // The list is in pixel order: start at the window's first row, stop after its last.
+    let first = list.partition_point(|s| s.v < window.v0);
+    for s in list.get(first..).unwrap_or(&[]) {
+        if s.v > window.v1 {
+            break;
         }
-        return;
+        if s.u < window.u0 || s.u > window.u1 {
+            continue;
+        }
+        let Some(p) = points::Point::at(frame, s.u as usize, s.v as usize) else { continue };
+        f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
     }
+}
+
+/// [`for_each_voxel_point_in`] by sampling, back-projecting and hashing the points again.
+fn for_each_resampled_point(
+    frame: &Frame<'_>,
+    params: &Params,
+    masks: Option<&MaskSet<'_>>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    window: points::PixelWindow,
+    mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
+) {
     let r = params.voxel_resolution;
     let mut slot_cache = SlotCache::default();
     points::for_each_point_in(frame, params, window, |p| {
@@ -382,17 +407,32 @@ pub fn voxelize(
     voxels.clear();
     slots.fill(0);
     sampled.clear();
+    // A profile without a list (capacity 0) skips it, in a loop of its own (the mcu profile's code).
+    if sampled.capacity() > 0 {
+        add_points::<true>(frame, params, masks, voxels, slots, sampled)
+    } else {
+        add_points::<false>(frame, params, masks, voxels, slots, sampled)
+    }
+}
+
+/// The point loop of [`voxelize`]; `LIST`: record each point in `sampled`.
+fn add_points<const LIST: bool>(
+    frame: &Frame<'_>,
+    params: &Params,
+    masks: Option<&MaskSet<'_>>,
+    voxels: &mut Bounded<'_, Voxel>,
+    slots: &mut [u16],
+    sampled: &mut Bounded<'_, SampledPoint>,
+) -> VoxelStats {
     let r = params.voxel_resolution;
     let mut stats = VoxelStats::default();
     let max_index = (DROPPED as usize).min(slots.len());
     let mut slot_cache = SlotCache::default();
-    // A profile without a list (capacity 0) skips it, rather than counting a refused entry per point.
-    let listing = sampled.capacity() > 0;
     points::for_each_point(frame, params, |p| {
         stats.points += 1;
         let voxel =
             add_point(p, r, max_index, point_slot(masks, params, p.u, p.v, &mut slot_cache), voxels, slots, &mut stats);
-        if listing {
+        if LIST {
             let _ = sampled.push(SampledPoint { u: p.u, v: p.v, voxel: voxel.map_or(NO_VOXEL, |i| i as u16) });
         }
     });
@@ -402,6 +442,7 @@ pub fn voxelize(
 
 /// Adds point `p` (mask slot `slot`) to its voxel, made when new; returns the index of the voxel it belongs to
 /// as a later lookup finds it ([`voxel_at`]): also a voxel at [`MAX_VOXEL_POINTS`] that refused it.
+#[inline(always)]
 fn add_point(
     p: &points::Point,
     r: f32,
@@ -501,19 +542,22 @@ fn neighbour_key(key: u32, d: usize) -> Option<u32> {
 }
 
 /// Calls `f(j)` for each occupied 26-neighbour `j` of voxel `i` (key `key`), in [`for_each_neighbour`]'s order:
-/// from `links` when given (complete for this frame's voxels), else through the hash.
-#[inline]
-pub fn for_each_linked_neighbour(
+/// from `links` (complete for this frame's voxels) when `LINKED`, else through the hash.
+#[inline(always)]
+pub fn for_each_linked_neighbour<const LINKED: bool>(
     voxels: &[Voxel],
     slots: &[u16],
-    links: Option<&[VoxelLinks]>,
+    links: &[VoxelLinks],
     i: usize,
     key: u32,
     f: impl FnMut(usize),
 ) {
-    match links.and_then(|l| l.get(i)) {
-        Some(l) => l.for_each(f),
-        None => for_each_neighbour(voxels, slots, key, f),
+    if LINKED {
+        if let Some(l) = links.get(i) {
+            l.for_each(f);
+        }
+    } else {
+        for_each_neighbour(voxels, slots, key, f);
     }
 }
 
@@ -542,43 +586,48 @@ fn link_voxels(voxels: &[Voxel], slots: &[u16], links: &mut [VoxelLinks], resolu
 /// Computes every voxel's normal from its 27-neighbourhood of centroids. When `links` holds an entry per
 /// voxel, it first records each voxel's centroid and neighbours there ([`VoxelLinks`]) and returns true.
 pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], links: &mut [VoxelLinks], resolution: f32) -> bool {
-    let linked = links.len() >= voxels.len();
-    if linked {
-        link_voxels(voxels, slots, links, resolution);
-    }
-    for i in 0..voxels.len() {
-        let Some(&v) = voxels.get(i) else { continue };
-        let mut m;
-        let c;
-        if let (true, Some(own)) = (linked, links.get(i)) {
-            c = own.centroid;
-            m = Moments::about(c);
-            m.add(c, 1.0);
-            own.for_each(|j| {
-                if let Some(n) = links.get(j) {
-                    m.add(n.centroid, 1.0);
-                }
-            });
-        } else {
-            c = v.centroid(resolution);
-            m = Moments::about(c);
+    if links.len() < voxels.len() {
+        for i in 0..voxels.len() {
+            let Some(&v) = voxels.get(i) else { continue };
+            let c = v.centroid(resolution);
+            let mut m = Moments::about(c);
             m.add(c, 1.0);
             for_each_neighbour(voxels, slots, v.key, |j| {
                 if let Some(n) = voxels.get(j) {
                     m.add(n.centroid(resolution), 1.0);
                 }
             });
+            set_normal(voxels, i, c, &m);
         }
-        let towards_camera = linalg::normalize_or(linalg::scale(c, -1.0), [0.0, 0.0, -1.0]);
-        let mut n = if m.weight >= 3.0 { linalg::sym_eigen(m.covariance()).normal() } else { towards_camera };
-        if linalg::dot(n, c) > 0.0 {
-            n = linalg::scale(n, -1.0);
-        }
-        if let Some(v) = voxels.get_mut(i) {
-            v.normal = [quantise_unit(n[0]), quantise_unit(n[1]), quantise_unit(n[2])];
-        }
+        return false;
     }
-    linked
+    link_voxels(voxels, slots, links, resolution);
+    for (i, own) in links.iter().enumerate().take(voxels.len()) {
+        let c = own.centroid;
+        let mut m = Moments::about(c);
+        m.add(c, 1.0);
+        own.for_each(|j| {
+            if let Some(n) = links.get(j) {
+                m.add(n.centroid, 1.0);
+            }
+        });
+        set_normal(voxels, i, c, &m);
+    }
+    true
+}
+
+/// Sets voxel `i`'s normal from the moments `m` of its neighbourhood's centroids (`c` its own), turned towards
+/// the camera.
+#[inline(always)]
+fn set_normal(voxels: &mut [Voxel], i: usize, c: Vec3, m: &Moments) {
+    let towards_camera = linalg::normalize_or(linalg::scale(c, -1.0), [0.0, 0.0, -1.0]);
+    let mut n = if m.weight >= 3.0 { linalg::sym_eigen(m.covariance()).normal() } else { towards_camera };
+    if linalg::dot(n, c) > 0.0 {
+        n = linalg::scale(n, -1.0);
+    }
+    if let Some(v) = voxels.get_mut(i) {
+        v.normal = [quantise_unit(n[0]), quantise_unit(n[1]), quantise_unit(n[2])];
+    }
 }
 
 /// A unit-vector component `x` (clamped to [−1, 1]) in units of 1/32767, rounded half away from zero: the same
@@ -629,7 +678,16 @@ pub struct SupervoxelPools<'a, 'b> {
 
 /// Grows the supervoxels of the voxels (second half of stage 2). Labels every voxel.
 pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> SupervoxelStats {
-    let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels, links } = pools;
+    // Growth with the links or through the hash, each compiled on its own (the latter is the mcu profile's).
+    match pools.links {
+        Some(links) => grow::<true>(pools, links, params),
+        None => grow::<false>(pools, &[], params),
+    }
+}
+
+/// [`build_supervoxels`]; `LINKED`: neighbours and centroids from `links`.
+fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks], params: &Params) -> SupervoxelStats {
+    let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels, links: _ } = pools;
     let r = params.voxel_resolution;
     let mut stats = SupervoxelStats::default();
     supervoxels.clear();
@@ -686,7 +744,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
                 continue;
             }
             let Some(key) = voxels.get(i).map(|v| v.key) else { continue };
-            for_each_linked_neighbour(voxels, slots, links, i, key, |j| {
+            for_each_linked_neighbour::<LINKED>(voxels, slots, links, i, key, |j| {
                 if let (Some(v), Some(st)) = (voxels.get(j), scratch.get_mut(j)) {
                     if v.supervoxel == UNLABELLED && *st == 0 {
                         *st = CANDIDATE | round;
@@ -705,10 +763,10 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
                 continue;
             }
             let Some(v) = voxels.get(i).copied() else { continue };
-            let c = links.and_then(|l| l.get(i)).map_or_else(|| v.centroid(r), |l| l.centroid);
+            let c = if LINKED { links.get(i).map_or([0.0; 3], |l| l.centroid) } else { v.centroid(r) };
             let (nv, col) = (v.unit_normal(), v.colour());
             let mut best: Option<(f32, u16)> = None;
-            for_each_linked_neighbour(voxels, slots, links, i, v.key, |j| {
+            for_each_linked_neighbour::<LINKED>(voxels, slots, links, i, v.key, |j| {
                 let (Some(nb), Some(&st)) = (voxels.get(j), scratch.get(j)) else { return };
                 if !is_assigned(nb.supervoxel) || st >= round {
                     return;
@@ -754,7 +812,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
         if v.supervoxel != UNLABELLED {
             continue;
         }
-        for_each_linked_neighbour(voxels, slots, links, i, v.key, |j| {
+        for_each_linked_neighbour::<LINKED>(voxels, slots, links, i, v.key, |j| {
             if voxels.get(j).is_some_and(|nb| nb.supervoxel == UNLABELLED) {
                 union_find::union(scratch, i, j);
             }
@@ -915,7 +973,7 @@ mod tests {
         for (i, v) in voxels.iter().enumerate() {
             let (mut by_hash, mut by_links) = (heapless::Vec::<usize, 26>::new(), heapless::Vec::<usize, 26>::new());
             for_each_neighbour(voxels, &slots, v.key, |j| by_hash.push(j).unwrap());
-            for_each_linked_neighbour(voxels, &slots, Some(&links[..n]), i, v.key, |j| by_links.push(j).unwrap());
+            for_each_linked_neighbour::<true>(voxels, &slots, &links[..n], i, v.key, |j| by_links.push(j).unwrap());
             assert_eq!(by_links, by_hash, "voxel {i}");
             assert_eq!(links[i].centroid.map(f32::to_bits), v.centroid(0.03).map(f32::to_bits));
             total += by_hash.len();

@@ -6,7 +6,8 @@
 //! ```text
 //! cargo run --release -p m2smap --example cold_fits -- DATASET FRAMES [MASKS_DIR]
 //! ```
-//! Environment: `STEP=k` maps every k-th frame; `WARM=1` keeps the tracks (the stage as `m2smap run` runs it).
+//! Environment: `STEP=k` maps every k-th frame; `WARM=1` keeps the tracks (the stage as `m2smap run` runs it);
+//! `MCU=1` maps in the mcu profile (no list of sampled points, no voxel links: the firmware's code paths).
 //! Masks come from `DATASET/masks` unless `MASKS_DIR` is given (e.g. `m2smap segment`'s output).
 
 use std::path::PathBuf;
@@ -15,7 +16,7 @@ use std::time::Instant;
 use anyhow::{anyhow, Context, Result};
 use m2smap::dataset::Dataset;
 use m2smap::masks::{read_frame_masks, LabelTable};
-use m2smap_core::{HostStorage, Mapper, Params};
+use m2smap_core::{HostStorage, Mapper, McuStorage, Params};
 
 fn main() {
     if let Err(e) = run() {
@@ -37,7 +38,13 @@ fn run() -> Result<()> {
     let d = Dataset::open(&root, None)?;
     let mut labels = LabelTable::default();
     let mut host = bytemuck::zeroed_box::<HostStorage>();
-    let mut mapper = Mapper::new(&mut *host, Params::default()).map_err(|e| anyhow!("parameters: {e}"))?;
+    let mut mcu = bytemuck::zeroed_box::<McuStorage>();
+    let mut mapper = if std::env::var("MCU").is_ok() {
+        Mapper::new(&mut *mcu, Params::default())
+    } else {
+        Mapper::new(&mut *host, Params::default())
+    }
+    .map_err(|e| anyhow!("parameters: {e}"))?;
     let mut buf = vec![0u8; 1 << 20];
     let (mut ms, mut fits, mut sqs, mut crc, mut frames) = (0.0f64, 0u64, 0u64, 0xFFFF_FFFFu32, 0usize);
     for i in (0..d.frames.len()).step_by(step).take(limit) {
