@@ -498,7 +498,7 @@ fn add_point(
 }
 
 /// A voxel's centroid and its occupied 26-neighbours, found once per frame by [`compute_normals`] where the
-/// profile has room (the `host` one; 64 bytes per voxel), so that neither the normals nor supervoxel growth look
+/// profile has room (the `host` one; 68 bytes per voxel), so that neither the normals nor supervoxel growth look
 /// neighbours up in the hash or centroids up from the sums again ([`for_each_neighbour`] and
 /// [`Voxel::centroid`] give the same indices, order and bits).
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
