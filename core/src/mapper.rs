@@ -409,6 +409,7 @@ impl<'s> Mapper<'s> {
     /// Stage 3: IH-GMM refinement (third step of [`Mapper::process`]).
     pub fn stage_gaussians(&mut self, checked: &CheckedFrame<'_>) {
         let voxel_masks = self.voxel_masks(checked);
+        let n = self.voxels.len();
         let stats = gmm::refine(
             GmmPools {
                 voxels: self.voxels.as_mut_slice(),
@@ -418,6 +419,7 @@ impl<'s> Mapper<'s> {
                 supervoxels: self.supervoxels.as_mut_slice(),
                 stack: &mut self.stack,
                 gaussians: &mut self.gaussians,
+                links: self.links.get(..n).filter(|_| self.linked),
             },
             &checked.frame,
             voxel_masks.as_ref(),
