@@ -61,7 +61,8 @@ pub struct AnnotateStats {
     pub hit_overflows: u32,
     /// Instances beyond [`MAX_INSTANCES`], ignored.
     pub ignored_instances: u32,
-    /// Whether [`count_hits`] counted from the voxels (no pass over the pixels; the same counts).
+    /// Whether [`count_hits`] counted from the voxels (the same counts; points one by one only for the voxels
+    /// whose instance the boxes leave open, over their Gaussians' pixels, no whole pass).
     pub by_voxels: bool,
 }
 
