@@ -14,9 +14,11 @@
 //!   a rejected frame leaves the previous map as it was.
 //! - **Deterministic.** The 15 % sample is a hash of the pixel index, supervoxels grow in index order and every
 //!   floating-point operation goes through `libm`: the same input gives the same bytes on a PC and on a Cortex-M7.
-//! - **Points are never stored.** The sampled points are a pure function of the caller's depth buffer, so the
+//! - **Points need not be stored.** The sampled points are a pure function of the caller's depth buffer, so the
 //!   core keeps 3 cm voxel sums and re-derives points when a stage needs them ([`points::for_each_point`]). This
-//!   is what lets a 640×480 frame fit the 512 KiB `mcu` profile.
+//!   is what lets a 640×480 frame fit the 512 KiB `mcu` profile. A profile with room (`host`) lists them once
+//!   with their voxels and links each voxel to its neighbours, which spares the later passes the re-sampling
+//!   and hashing; the maps are the same bits either way ([`supervoxel::for_each_voxel_point`]).
 //!
 //! ## Pipeline (one module per stage of the paper)
 //! 1. [`points`]: depth range filter and the seeded 15 % sample (paper §VI).
