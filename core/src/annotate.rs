@@ -109,9 +109,10 @@ fn boxes_overlap(a: [u16; 4], b: [u16; 4]) -> bool {
 /// every sampled point of a usable instance lies in its box (from [`supervoxel::voxelize`]; false when unknown).
 ///
 /// Where the voxels were split by these masks, each voxel whose points can belong to one instance only adds its
-/// point count at once ([`voxel_owner`]); the points of the other voxels are counted one by one, over the pixels
-/// of their Gaussians' boxes only. Otherwise (or when the table fills up, so that which pairs find room would
-/// depend on the order) every point is counted in one pass over the pixels. The counts are the same either way.
+/// point count at once (its slot's instances, narrowed by the boxes); the other voxels' points are counted one
+/// by one, over the pixels of their Gaussians' boxes only. Otherwise (or when the table fills up, so that which
+/// pairs find room would depend on the order) every point is counted in one pass over the pixels. The counts
+/// are the same either way.
 #[allow(clippy::too_many_arguments)]
 pub fn count_hits(
     frame: &Frame<'_>,
