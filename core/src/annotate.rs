@@ -131,52 +131,27 @@ pub fn count_hits(
         ignored_instances: masks.instances.len().saturating_sub(MAX_INSTANCES) as u32,
         ..Default::default()
     };
+    let count_points = |hits: &mut [MaskHit], scope: Option<&Undecided>| {
+        count_point_hits(frame, masks, voxel_masks, voxels, slots, sampled, gaussians, hits, params, scope)
+    };
     if let Some(undecided) =
         count_hits_by_voxel(masks, voxel_masks, masks_within_boxes, voxels, gaussians, hits, params)
     {
-        let boxes_decide = undecided.boxes_decide;
-        let only_undecided = |v: &Voxel, g: &Gaussian| {
-            matches!(voxel_owner(v, g, masks.instances, boxes_decide, params), Owner::Unknown)
-        };
-        let overflows = count_point_hits(
-            frame,
-            masks,
-            voxel_masks,
-            voxels,
-            slots,
-            sampled,
-            gaussians,
-            hits,
-            params,
-            undecided.window,
-            only_undecided,
-        );
-        if overflows == 0 {
+        if count_points(hits, Some(&undecided)) == 0 {
             stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
             stats.by_voxels = true;
             return stats;
         }
         hits.fill(MaskHit::zeroed());
     }
-    stats.hit_overflows = count_point_hits(
-        frame,
-        masks,
-        voxel_masks,
-        voxels,
-        slots,
-        sampled,
-        gaussians,
-        hits,
-        params,
-        PixelWindow::WHOLE,
-        |_, _| true,
-    );
+    stats.hit_overflows = count_points(hits, None);
     stats.hit_pairs = hits.iter().filter(|h| h.key != 0).count() as u32;
     stats
 }
 
-/// Adds the points of `window` whose voxel passes `counted` to `hits`, one by one (the pixel pass); returns the
-/// hits that found no room in the table.
+/// Adds points to `hits` one by one (the pixel pass): every point, or with `scope` only those of the voxels
+/// [`count_hits_by_voxel`] left undecided, over their Gaussians' pixels. Returns the hits that found no room in
+/// the table.
 #[allow(clippy::too_many_arguments)]
 fn count_point_hits(
     frame: &Frame<'_>,
@@ -188,9 +163,12 @@ fn count_point_hits(
     gaussians: &[Gaussian],
     hits: &mut [MaskHit],
     params: &Params,
-    window: PixelWindow,
-    counted: impl Fn(&Voxel, &Gaussian) -> bool,
+    scope: Option<&Undecided>,
 ) -> u32 {
+    let window = scope.map_or(PixelWindow::WHOLE, |u| u.window);
+    let counted = |v: &Voxel, g: &Gaussian| {
+        scope.is_none_or(|u| matches!(voxel_owner(v, g, masks.instances, u.boxes_decide, params), Owner::Unknown))
+    };
     if window.u0 > window.u1 || window.v0 > window.v1 {
         return 0;
     }

@@ -336,14 +336,17 @@ impl<'s> Mapper<'s> {
         self.params.depth_max = self.depth_max;
         self.slotted = checked.masks.is_some() && self.params.mask_consistent();
         let voxel_masks = self.voxel_masks(checked);
-        let mut stats = supervoxel::voxelize(
-            &checked.frame,
-            &self.params,
-            voxel_masks.as_ref(),
-            &mut self.voxels,
-            self.slots,
-            &mut self.sampled,
-        );
+        let voxelize = |m: &mut Self| {
+            supervoxel::voxelize(
+                &checked.frame,
+                &m.params,
+                voxel_masks.as_ref(),
+                &mut m.voxels,
+                m.slots,
+                &mut m.sampled,
+            )
+        };
+        let mut stats = voxelize(self);
         // A full pool: the voxels again over nearer ranges ([`VOXEL_RANGE_CUT`]); every later stage of this frame
         // sees the same range (`finish_frame` restores it), so a point beyond it belongs to no voxel anywhere.
         let (in_range, refused, refused_slots) =
@@ -353,14 +356,7 @@ impl<'s> Mapper<'s> {
             cuts += 1;
             let near = self.params.depth_min;
             self.params.depth_max = near + (self.params.depth_max - near) * VOXEL_RANGE_CUT;
-            stats = supervoxel::voxelize(
-                &checked.frame,
-                &self.params,
-                voxel_masks.as_ref(),
-                &mut self.voxels,
-                self.slots,
-                &mut self.sampled,
-            );
+            stats = voxelize(self);
         }
         if cuts > 0 {
             self.voxels.add_overflows(refused);
