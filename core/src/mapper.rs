@@ -247,7 +247,7 @@ impl<'s> Mapper<'s> {
     /// Voxelisation's list of the current frame's sampled points and their voxels, when it holds all of them
     /// (for [`supervoxel::for_each_voxel_point`]).
     pub fn sampled_points(&self) -> Option<&[supervoxel::SampledPoint]> {
-        Some(self.sampled.as_slice()).filter(|_| self.sampled_complete)
+        listed(&self.sampled, self.sampled_complete)
     }
 
     /// Whether the last frame's voxels were split by id-image masks and every sampled point of a usable
@@ -410,7 +410,7 @@ impl<'s> Mapper<'s> {
             GmmPools {
                 voxels: self.voxels.as_mut_slice(),
                 slots: self.slots,
-                sampled: Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
+                sampled: listed(&self.sampled, self.sampled_complete),
                 order: self.scratch,
                 supervoxels: self.supervoxels.as_mut_slice(),
                 stack: &mut self.stack,
@@ -450,7 +450,7 @@ impl<'s> Mapper<'s> {
                 voxel_masks.as_ref(),
                 self.voxels.as_mut_slice(),
                 self.slots,
-                Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
+                listed(&self.sampled, self.sampled_complete),
                 self.scratch,
                 &mut self.gaussians,
                 self.mask_hits,
@@ -482,7 +482,7 @@ impl<'s> Mapper<'s> {
             self.masks_within_boxes,
             self.voxels.as_slice(),
             self.slots,
-            Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
+            listed(&self.sampled, self.sampled_complete),
             self.gaussians.as_slice(),
             self.mask_hits,
             &self.params,
@@ -566,7 +566,7 @@ impl<'s> Mapper<'s> {
             self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
-            Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
+            listed(&self.sampled, self.sampled_complete),
             self.gaussians.as_slice(),
             self.planes.as_mut_slice(),
             &params,
@@ -664,7 +664,7 @@ impl<'s> Mapper<'s> {
                     voxel_masks.as_ref(),
                     self.voxels.as_slice(),
                     self.slots,
-                    Some(self.sampled.as_slice()).filter(|_| self.sampled_complete),
+                    listed(&self.sampled, self.sampled_complete),
                     window,
                     sample,
                 );
@@ -1053,6 +1053,15 @@ impl<'s> Mapper<'s> {
             |p, v| f(p, v.map(|(_, v)| v)),
         );
     }
+}
+
+/// Voxelisation's list of sampled points when it holds the whole frame (`complete`), else `None` (the passes
+/// sample again). A function of the two fields, not of the mapper, so a stage can lend it beside other fields.
+fn listed<'a>(
+    sampled: &'a Bounded<'_, supervoxel::SampledPoint>,
+    complete: bool,
+) -> Option<&'a [supervoxel::SampledPoint]> {
+    Some(sampled.as_slice()).filter(|_| complete)
 }
 
 /// The planes and flat patches an object (instance `instance`) with fit points `points` (camera frame) rests
