@@ -750,6 +750,11 @@ impl<'s> Mapper<'s> {
                 supports: supports.get(..n_supports).unwrap_or(&[]),
                 free: probes.get(..n_probes).unwrap_or(&[]),
                 view: Some((&checked.frame, &params)),
+                masks: checked
+                    .masks
+                    .as_ref()
+                    .filter(|_| !params.variant.geometric_objects())
+                    .map(|m| (m, object.instance)),
             };
             // Warm start from the track this object would join (its state in the camera frame); the full
             // multi-guess search runs when there is none or the refined fit is not acceptable.

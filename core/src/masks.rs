@@ -144,6 +144,26 @@ impl<'a> MaskSet<'a> {
         }
     }
 
+    /// Whether pixel (u, v) belongs to an instance of score ≥ `min_confidence` other than the one with id `own`:
+    /// what the camera saw there is another object. Out-of-range → false.
+    pub fn held_by_other(&self, u: u16, v: u16, own: u16, min_confidence: f32) -> bool {
+        if u >= self.width || v >= self.height {
+            return false;
+        }
+        let usable = |inst: &Instance| inst.id != own && inst.score >= min_confidence;
+        match self.pixels {
+            MaskPixels::IdImage(ids) => {
+                let i = v as usize * self.width as usize + u as usize;
+                ids.get(i).is_some_and(|&id| {
+                    id != 0 && id != own && self.instances.iter().any(|inst| inst.id == id && usable(inst))
+                })
+            }
+            MaskPixels::BitPlanes(_) => {
+                self.instances.iter().enumerate().any(|(k, inst)| usable(inst) && self.contains(k, u, v))
+            }
+        }
+    }
+
     /// Whether pixel (u, v) belongs to the instance at position `k` of `instances`. Out-of-range → false.
     pub fn contains(&self, k: usize, u: u16, v: u16) -> bool {
         if u >= self.width || v >= self.height {
@@ -157,6 +177,40 @@ impl<'a> MaskSet<'a> {
                 let plane = Self::plane_bytes(self.width, self.height);
                 bits.get(k * plane + i / 8).is_some_and(|b| (b >> (i % 8)) & 1 == 1)
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Another usable instance holds a pixel in either layout; the own instance, an instance below the
+    /// confidence, no instance and a pixel outside the image do not.
+    #[test]
+    fn a_pixel_of_another_usable_instance_is_held_by_other() {
+        // 4 × 2 pixels: row 0 = [1, 1, 2, 3], row 1 = [0, 2, 2, 0]; instance 3 scores below the threshold.
+        let ids = [1u16, 1, 2, 3, 0, 2, 2, 0];
+        let instances = [
+            Instance { id: 1, class: 0, score: 0.9, bbox: [0, 0, 1, 0] },
+            Instance { id: 2, class: 0, score: 0.9, bbox: [1, 0, 2, 1] },
+            Instance { id: 3, class: 0, score: 0.1, bbox: [3, 0, 3, 0] },
+        ];
+        let mut planes = [0u8; 3];
+        for (i, &id) in ids.iter().enumerate() {
+            if id != 0 {
+                planes[usize::from(id) - 1] |= 1 << i;
+            }
+        }
+        for pixels in [MaskPixels::IdImage(&ids), MaskPixels::BitPlanes(&planes)] {
+            let m = MaskSet { width: 4, height: 2, instances: &instances, pixels };
+            let held = |u, v| m.held_by_other(u, v, 1, 0.5);
+            assert!(held(2, 0) && held(1, 1) && held(2, 1), "instance 2's pixels");
+            assert!(!held(0, 0) && !held(1, 0), "the own instance's");
+            assert!(!held(3, 0), "below the confidence");
+            assert!(!held(0, 1) && !held(3, 1), "no instance");
+            assert!(!held(4, 0) && !held(0, 2), "outside the image");
+            assert!(m.held_by_other(0, 0, 2, 0.5), "seen from instance 2, instance 1 is the other");
         }
     }
 }
