@@ -1,5 +1,7 @@
 //! Small fixed-size linear algebra: 3-vectors, streaming moments and the symmetric 3×3 eigen-decomposition.
 //! Every stage that needs the PCA of a cluster uses [`Moments`] and [`sym_eigen`]; there is no second copy.
+//! The voxel normals need only the least-variance direction: [`least_variance_direction`] finds it without
+//! the full decomposition.
 
 /// A 3-vector, metres unless said otherwise.
 pub type Vec3 = [f32; 3];
@@ -328,6 +330,55 @@ pub fn sym_eigen(m: Sym3) -> Eigen3 {
     Eigen3 { values, vectors }
 }
 
+/// Squarings of the adjugate in [`least_variance_direction`]: its 2^k-th power separates the normal by
+/// (λ3/λ2)^(2^k), 2.6·10⁻⁶ for k = 5 at λ2 = 1.5·λ3.
+const ADJUGATE_SQUARINGS: usize = 5;
+
+/// The least-variance direction of a symmetric positive semi-definite 3×3 matrix `m` (a unit vector, either
+/// sign): the dominant eigenvector of its adjugate adj(m) = det(m)·m⁻¹, whose eigenvalues are λ2λ3, λ1λ3 and
+/// λ1λ2 for the eigenvectors of λ1 ≥ λ2 ≥ λ3. The adjugate squared [`ADJUGATE_SQUARINGS`] times (each
+/// rescaled by its trace) is nearly the projector onto that eigenvector; its largest column, normalised, is the
+/// direction. About 250 instructions against ~1 000 for [`sym_eigen`]'s Jacobi sweeps (the voxel normals, one
+/// per voxel, were a fifth of the voxel stage). `None` for a matrix of rank below 2 (a line or a point: no
+/// direction is defined by `m` alone), or not finite.
+pub fn least_variance_direction(m: Sym3) -> Option<Vec3> {
+    let [a, b, c, d, e, f] = m;
+    let mut s: Sym3 = [d * f - e * e, c * e - b * f, b * e - c * d, a * f - c * c, b * c - a * e, a * d - b * b];
+    let trace_m = a + d + f;
+    let trace = |s: &Sym3| s[0] + s[3] + s[5];
+    // Rank below 2: λ1λ2 + λ1λ3 + λ2λ3 vanishes against (λ1 + λ2 + λ3)².
+    let rank_two = trace(&s) > 1e-7 * trace_m * trace_m;
+    if !rank_two {
+        return None;
+    }
+    for _ in 0..ADJUGATE_SQUARINGS {
+        let t = trace(&s);
+        if !(t > 0.0 && t.is_finite()) {
+            return None;
+        }
+        let [a, b, c, d, e, f] = s.map(|x| x / t);
+        s = [
+            a * a + b * b + c * c,
+            a * b + b * d + c * e,
+            a * c + b * e + c * f,
+            b * b + d * d + e * e,
+            b * c + d * e + e * f,
+            c * c + e * e + f * f,
+        ];
+    }
+    // The column of the largest diagonal entry.
+    let [a, b, c, d, e, f] = s;
+    let x = if a >= d && a >= f {
+        [a, b, c]
+    } else if d >= f {
+        [b, d, e]
+    } else {
+        [c, e, f]
+    };
+    let n = norm(x);
+    (n > 0.0 && n.is_finite()).then(|| scale(x, 1.0 / n))
+}
+
 /// One Jacobi rotation zeroing a[p][q] (p < q < 3), applied to `a` (both sides) and accumulated in `v`.
 #[allow(clippy::indexing_slicing, clippy::needless_range_loop)] // p, q ∈ {0, 1, 2} by construction; the arrays are 3×3.
 #[inline(always)]
@@ -381,6 +432,41 @@ mod tests {
             m[1] * x[0] + m[3] * x[1] + m[4] * x[2],
             m[2] * x[0] + m[4] * x[1] + m[5] * x[2],
         ]
+    }
+
+    /// The squared adjugate finds the least-variance direction of the Jacobi decomposition: within 1e-5 rad
+    /// when the two smallest eigenvalues are 3 or 10 apart (measured: 2.8·10⁻⁶ and 4.9·10⁻⁶ at worst), within
+    /// 1e-4 rad at 1.5 apart (9.2·10⁻⁶); a line (rank 1) and zero give `None` or a direction across the line.
+    #[test]
+    fn least_variance_direction_is_the_jacobi_normal() {
+        let mut s = 777u32;
+        let mut rnd = || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            (s as f32 / u32::MAX as f32) * 2.0 - 1.0
+        };
+        for (ratio, tolerance) in [(10.0f32, 1e-5f32), (3.0, 1e-5), (1.5, 1e-4)] {
+            for _ in 0..300 {
+                // R diag(λ1, λ2, λ3) Rᵀ with λ1 ≥ λ2 = λ1 / 2, λ3 = λ2 / ratio, in voxel units (cm²).
+                let r = rotation_from_vector([3.0 * rnd(), 3.0 * rnd(), 3.0 * rnd()]);
+                let l1 = 1e-4 * (1.0 + rnd().abs());
+                let l = [l1, 0.5 * l1, 0.5 * l1 / ratio];
+                let e = |i: usize, j: usize| (0..3).map(|k| r[i][k] * l[k] * r[j][k]).sum::<f32>();
+                let m = [e(0, 0), e(0, 1), e(0, 2), e(1, 1), e(1, 2), e(2, 2)];
+                let n = least_variance_direction(m).expect("rank 3");
+                let truth = sym_eigen(m).normal();
+                let angle = norm(cross(n, truth));
+                assert!(angle <= tolerance, "ratio {ratio}: {angle} rad");
+                assert!((norm(n) - 1.0).abs() < 1e-5);
+            }
+        }
+        // Points on one line: every 2 × 2 minor vanishes.
+        let d = [0.3f32, -0.2, 0.9];
+        let line = [d[0] * d[0], d[0] * d[1], d[0] * d[2], d[1] * d[1], d[1] * d[2], d[2] * d[2]];
+        let n = least_variance_direction(line);
+        assert!(n.is_none_or(|n| dot(n, d).abs() < 1e-2), "{n:?}");
+        assert_eq!(least_variance_direction([0.0; 6]), None);
     }
 
     #[test]

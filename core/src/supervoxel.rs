@@ -621,7 +621,12 @@ pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], links: &mut [VoxelLi
 #[inline(always)]
 fn set_normal(voxels: &mut [Voxel], i: usize, c: Vec3, m: &Moments) {
     let towards_camera = linalg::normalize_or(linalg::scale(c, -1.0), [0.0, 0.0, -1.0]);
-    let mut n = if m.weight >= 3.0 { linalg::sym_eigen(m.covariance()).normal() } else { towards_camera };
+    let mut n = if m.weight >= 3.0 {
+        let cov = m.covariance();
+        linalg::least_variance_direction(cov).unwrap_or_else(|| linalg::sym_eigen(cov).normal())
+    } else {
+        towards_camera
+    };
     if linalg::dot(n, c) > 0.0 {
         n = linalg::scale(n, -1.0);
     }
