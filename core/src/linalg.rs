@@ -336,7 +336,7 @@ const ADJUGATE_SQUARINGS: usize = 5;
 
 /// The least-variance direction of a symmetric positive semi-definite 3×3 matrix `m` (a unit vector, either
 /// sign): the dominant eigenvector of its adjugate adj(m) = det(m)·m⁻¹, whose eigenvalues are λ2λ3, λ1λ3 and
-/// λ1λ2 for the eigenvectors of λ1 ≥ λ2 ≥ λ3. The adjugate squared [`ADJUGATE_SQUARINGS`] times (each
+/// λ1λ2 for the eigenvectors of λ1 ≥ λ2 ≥ λ3. The adjugate squared 5 times (`ADJUGATE_SQUARINGS`; each
 /// rescaled by its trace) is nearly the projector onto that eigenvector; its largest column, normalised, is the
 /// direction. About 250 instructions against ~1 000 for [`sym_eigen`]'s Jacobi sweeps (the voxel normals, one
 /// per voxel, were a fifth of the voxel stage). `None` for a matrix of rank below 2 (a line or a point: no

@@ -32,7 +32,7 @@
 //! points, except the far end of an axis that looks away from the camera, which may extend by
 //! |axis · view| · 2 · (half the silhouette's width): an object is no deeper than it is wide. An end the camera
 //! saw past (free space 5 cm beyond it) may reach 1 cm, an end next to another instance's mask at the same depth
-//! 5 mm ([`extent_excess`]).
+//! 5 mm (`extent_excess`).
 //!
 //! **Evidence** ([`Evidence`]): support half-spaces (the shape's lowest point along the normal, from the exact
 //! support function [`Superquadric::support`], stays 3 mm above) and free-space probes (points known empty or
