@@ -519,7 +519,7 @@ pub struct Evidence<'a> {
     pub view: Option<(&'a Frame<'a>, &'a Params)>,
     /// The frame's instance masks and the id of the object's own instance, when the object comes from a mask:
     /// a pixel of another instance where the shape would continue shows that the shape ends there
-    /// ([`abuts_other_object`]).
+    /// (`abuts_other_object`).
     pub masks: Option<(&'a MaskSet<'a>, u16)>,
 }
 
