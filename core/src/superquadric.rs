@@ -2262,12 +2262,9 @@ mod front_view_tests {
         assert!(behind_occluding_edge(&stepped, &params, 160, 40, z + 0.2, |_, _| true));
     }
 
-    /// The hidden-depth prior gives a box's far end no room when the camera saw the box's top up to its back
-    /// edge and free space behind it; it keeps the room when what lies beyond is more of the top (a neighbour
-    /// touching the back, or the part of the top an eroded mask lost), without a frame, and for a ball.
-    #[test]
-    fn a_seen_top_bounds_the_hidden_depth_and_nothing_else_does() {
-        // A 20 cm box at 0.8–1.0 m, 30 cm below the camera: its top is seen 18–21° from edge-on.
+    /// A 20 cm box at 0.8–1.0 m, 30 cm below the camera (its top is seen 18–21° from edge-on): its corners
+    /// `lo`, `hi`, the camera, and its fit points on the front face and the top (not the top's corners).
+    fn seen_top_box() -> (Vec3, Vec3, Intrinsics, Vec<Vec3>) {
         let (lo, hi) = ([-0.1, 0.3, 0.8], [0.1, 0.5, 1.0]);
         let intrinsics = Intrinsics { fx: 480.0, fy: 480.0, cx: 160.0, cy: 20.0 };
         let mut points = Vec::new();
@@ -2278,6 +2275,15 @@ mod front_view_tests {
                 points.push([-0.08 + 0.16 * s, 0.3, 0.8 + 0.2 * t]); // top face (not its corners)
             }
         }
+        (lo, hi, intrinsics, points)
+    }
+
+    /// The hidden-depth prior gives a box's far end no room when the camera saw the box's top up to its back
+    /// edge and free space behind it; it keeps the room when what lies beyond is more of the top (a neighbour
+    /// touching the back, or the part of the top an eroded mask lost), without a frame, and for a ball.
+    #[test]
+    fn a_seen_top_bounds_the_hidden_depth_and_nothing_else_does() {
+        let (lo, hi, intrinsics, points) = seen_top_box();
         let params = Params::default();
         let hidden = hidden_depth(&points);
         // The fit made 8 cm too deep.
@@ -2318,17 +2324,7 @@ mod front_view_tests {
     /// may continue behind); the side ends of the box get it too, and only in the LM objective.
     #[test]
     fn an_end_next_to_another_object_gets_the_tight_allowance() {
-        // The seen-top box of the test above, 20 cm, at 0.8–1.0 m, 30 cm below the camera.
-        let (lo, hi) = ([-0.1, 0.3, 0.8], [0.1, 0.5, 1.0]);
-        let intrinsics = Intrinsics { fx: 480.0, fy: 480.0, cx: 160.0, cy: 20.0 };
-        let mut points = Vec::new();
-        for i in 0..5 {
-            for j in 0..5 {
-                let (s, t) = (i as f32 / 4.0, j as f32 / 4.0);
-                points.push([-0.1 + 0.2 * s, 0.3 + 0.2 * t, 0.8]);
-                points.push([-0.08 + 0.16 * s, 0.3, 0.8 + 0.2 * t]);
-            }
-        }
+        let (lo, hi, intrinsics, points) = seen_top_box();
         let params = Params::default();
         let hidden = hidden_depth(&points);
         // Ids per pixel: the box (1) and the neighbour (2) where the observed point lies on them.
