@@ -707,9 +707,11 @@ fn extent_excess(
             let out_dir = linalg::scale(axis, sign);
             let bound = out.bound.get(end).copied();
             // The far end (away from the camera) may hide the unseen back; an end the camera saw past may not,
-            // and gets the seen allowance. Whether it was seen matters only when it reaches beyond that.
+            // and gets the seen allowance. Whether it was seen matters only when it reaches beyond that, and
+            // for a near end only when that allowance is below the margin (not in the acceptance test).
             let far = (sign > 0.0) == (facing >= 0.0);
             let seen = reach > seen_margin
+                && (far || seen_margin < m)
                 && match (evidence.view, bound) {
                     (Some((frame, params)), Some(l)) => {
                         (!far || reaches_along_seen_face(sq, l, k)) && ends_where_seen(sq, l, out_dir, frame, params)
