@@ -426,6 +426,16 @@ fn rotate(a: &mut [[f32; 3]; 3], v: &mut [[f32; 3]; 3], p: usize, q: usize) {
 mod tests {
     use super::*;
 
+    /// A xorshift32 stream of uniform values in [−1, 1] from `seed`.
+    fn uniform(mut s: u32) -> impl FnMut() -> f32 {
+        move || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            (s as f32 / u32::MAX as f32) * 2.0 - 1.0
+        }
+    }
+
     fn mat_vec(m: Sym3, x: Vec3) -> Vec3 {
         [
             m[0] * x[0] + m[1] * x[1] + m[2] * x[2],
@@ -439,13 +449,7 @@ mod tests {
     /// 1e-4 rad at 1.5 apart (9.2·10⁻⁶); a line (rank 1) and zero give `None` or a direction across the line.
     #[test]
     fn least_variance_direction_is_the_jacobi_normal() {
-        let mut s = 777u32;
-        let mut rnd = || {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            (s as f32 / u32::MAX as f32) * 2.0 - 1.0
-        };
+        let mut rnd = uniform(777);
         for (ratio, tolerance) in [(10.0f32, 1e-5f32), (3.0, 1e-5), (1.5, 1e-4)] {
             for _ in 0..300 {
                 // R diag(λ1, λ2, λ3) Rᵀ with λ1 ≥ λ2 = λ1 / 2, λ3 = λ2 / ratio, in voxel units (cm²).
@@ -471,13 +475,7 @@ mod tests {
 
     #[test]
     fn eigen_satisfies_definition_on_pseudo_random_matrices() {
-        let mut s = 12345u32;
-        let mut rnd = || {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            (s as f32 / u32::MAX as f32) * 2.0 - 1.0
-        };
+        let mut rnd = uniform(12345);
         for _ in 0..500 {
             // B Bᵀ is symmetric positive semi-definite.
             let b = [[rnd(), rnd(), rnd()], [rnd(), rnd(), rnd()], [rnd(), rnd(), rnd()]];
