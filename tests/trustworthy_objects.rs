@@ -62,13 +62,15 @@ fn touching_objects_with_perfect_and_degraded_masks() {
 /// and top, its ends rounded by ε ≥ 0.1) and the shelf's cabinet beside a crate keep their superquadrics within
 /// 1 cm of the neighbours' true solids (p95; 2 cm max), with perfect masks and with masks dilated by 2 px. Before
 /// the seen-end and abutting allowances (docs/pipeline.md, stage 9) these 6-frame runs measured p95 1.59, 1.67
-/// and 1.70 cm (clutter seeds 1, 3 and 4 dilated) and 1.17 cm (shelf). Clutter seed 2 is not here: its frame 0
-/// crate's cold fit is turned a few degrees into the bin (2.45 cm, README "Objects you can trust").
+/// and 1.70 cm (clutter seeds 1, 3 and 4 dilated) and 1.17 cm (shelf). Clutter seed 2's frame 0 crate, fitted
+/// turned a few degrees while a 3 mm clearance held it above the table, reached 2.45 cm into the bin (0.67 cm
+/// since the shape may rest on its support).
 #[test]
 fn touching_objects_stay_out_of_each_other() {
     let dir = tempfile::tempdir().unwrap();
     for (scene, seed, flags) in [
         ("clutter", "1", &[][..]),
+        ("clutter", "2", &[][..]),
         ("clutter", "3", &[][..]),
         ("clutter", "4", &["--mask-dilate", "2"][..]),
         ("shelf", "1", &[][..]),
@@ -115,10 +117,12 @@ fn ycbv_superquadrics_respect_free_space_and_the_table() {
     assert!(metric(&s, "adhesion_map_sq") <= 0.1, "map-level adhesion of superquadrics {}", s["adhesion_map_sq"]);
     assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.5, "superquadrics per frame {}", s["primitives"]["sq"]);
     // Sizes against the YCB objects' published sizes: every superquadric on the gelatin box or the foam brick is
-    // scored (one or two per frame). The target is 15 %; measured: median 19.9 %, worst 23.4 % (the
-    // gelatin box's 2.8 cm side fitted 2.2–2.6 cm, the brick's unseen depth 6.1 cm for 5), so this guards 30 %.
+    // scored (one or two per frame). The target is 15 %; measured: 11 of 18 within it, median 12.4 %,
+    // worst 19.5 % (the gelatin box's 2.8 cm side fitted 2.3–2.5 cm: its depth points span 2.6 cm), so this
+    // guards half within 15 % and 25 % at worst.
     assert!(metric(&s, "sq_sizes_scored") >= 10.0, "superquadrics scored for size: {}", s["sq_sizes_scored"]);
-    assert!(metric(&s, "sq_size_error_max") <= 0.30, "worst size error {}", s["sq_size_error_max"]);
+    assert!(metric(&s, "sq_sizes_within_tolerance") >= 0.5, "sizes within 15 %: {}", s["sq_sizes_within_tolerance"]);
+    assert!(metric(&s, "sq_size_error_max") <= 0.25, "worst size error {}", s["sq_size_error_max"]);
     let frames = std::fs::read_to_string(dir.path().join("frames.jsonl")).unwrap();
     let labels: std::collections::BTreeSet<String> = frames
         .lines()

@@ -35,10 +35,10 @@
 //! 5 mm (`extent_excess`).
 //!
 //! **Evidence** ([`Evidence`]): support half-spaces (the shape's lowest point along the normal, from the exact
-//! support function [`Superquadric::support`], stays 3 mm above) and free-space probes (points known empty or
-//! occupied by another object, which must lie outside the shape) are one-sided residuals of the same LM. The
-//! best two finished candidates get two more rounds in which their own camera-facing samples that lie in
-//! observed free space become probes ([`front_view`]).
+//! support function [`Superquadric::support`], stays above the plane: an object rests on it) and free-space
+//! probes (points known empty or occupied by another object, which must lie outside the shape) are one-sided
+//! residuals of the same LM. The best two finished candidates get two more rounds in which their own
+//! camera-facing samples that lie in observed free space become probes ([`front_view`]).
 //!
 //! **Validity.** Finite parameters, within bounds, E_sq < `sq_max_error`, the trimmed RMS point distance (best
 //! 90 %) at most `sq_max_rms` with at most 15 % of the points beyond twice that (one convex shape describes the
@@ -978,9 +978,6 @@ fn hidden_depth(points: &[Vec3]) -> f32 {
 const SUPPORT_WEIGHT: f32 = 1.0;
 /// How far below a support plane a shape may reach and still be accepted, metres.
 const SUPPORT_TOLERANCE: f32 = 0.005;
-/// The LM keeps a shape this far above its supports, metres: seen at a grazing angle, a centimetre below a
-/// table top is several centimetres behind it along the line of sight.
-const SUPPORT_CLEARANCE: f32 = 0.003;
 /// Weight of a free-space probe inside the shape in the LM objective, against 1 for a fit point: a probe is
 /// observed free space with the depth tolerance already taken off, a point carries its sensor noise (measured
 /// against 1: the cabinet keeps its superquadric on 2 more frames, redkitchen on 0.6 more objects per frame;
@@ -1020,10 +1017,10 @@ fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> (f32, Excess) {
         .iter()
         .map(|h| {
             // Clear of the support by its bounding box: the term is 0, as lowest_along would find.
-            if sq.clears(h.normal, h.offset + SUPPORT_CLEARANCE) {
+            if sq.clears(h.normal, h.offset) {
                 return 0.0;
             }
-            let e = (sq.lowest_along(h.normal) - h.offset - SUPPORT_CLEARANCE).min(0.0);
+            let e = (sq.lowest_along(h.normal) - h.offset).min(0.0);
             SUPPORT_WEIGHT * n * e * e
         })
         .sum();
@@ -1414,11 +1411,11 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         // ∂e/∂t = n.
         let n_points = points.len() as f32;
         for h in prob.evidence.supports {
-            if base.clears(h.normal, h.offset + SUPPORT_CLEARANCE) {
+            if base.clears(h.normal, h.offset) {
                 continue;
             }
             let low = base.lowest_along(h.normal);
-            let e = low - h.offset - SUPPORT_CLEARANCE;
+            let e = low - h.offset;
             if e >= 0.0 {
                 continue;
             }

@@ -6,7 +6,7 @@
 //! ```text
 //! cargo run --release -p m2smap --example cold_fits -- DATASET FRAMES [MASKS_DIR]
 //! ```
-//! Environment: `STEP=k` maps every k-th frame; `WARM=1` keeps the tracks (the stage as `m2smap run` runs it);
+//! Environment: `STEP=k` maps every k-th frame; `REPS=r` maps each frame r times in a row (as `make bench`); `WARM=1` keeps the tracks (the stage as `m2smap run` runs it);
 //! `MCU=1` maps in the mcu profile (no list of sampled points, no voxel links: the firmware's code paths).
 //! Masks come from `DATASET/masks` unless `MASKS_DIR` is given (e.g. `m2smap segment`'s output).
 
@@ -34,6 +34,7 @@ fn run() -> Result<()> {
     let limit: usize = limit.parse().context("FRAMES must be a number")?;
     let masks_dir = args.get(3).map_or_else(|| root.join("masks"), PathBuf::from);
     let warm = std::env::var("WARM").is_ok();
+    let reps: usize = std::env::var("REPS").ok().and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
     let step: usize = std::env::var("STEP").ok().and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
     let d = Dataset::open(&root, None)?;
     let mut labels = LabelTable::default();
@@ -47,7 +48,7 @@ fn run() -> Result<()> {
     .map_err(|e| anyhow!("parameters: {e}"))?;
     let mut buf = vec![0u8; 1 << 20];
     let (mut ms, mut fits, mut sqs, mut crc, mut frames) = (0.0f64, 0u64, 0u64, 0xFFFF_FFFFu32, 0usize);
-    for i in (0..d.frames.len()).step_by(step).take(limit) {
+    for i in (0..d.frames.len()).step_by(step).take(limit).flat_map(|i| std::iter::repeat_n(i, reps)) {
         let frame = d.load(i)?;
         let masks = read_frame_masks(&masks_dir, &d.frames[i].stem, frame.width, frame.height, &mut labels)?;
         let view = frame.view_posed(&d.camera, d.frames[i].pose.as_ref());
