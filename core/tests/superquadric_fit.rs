@@ -140,3 +140,33 @@ fn mmq_fits_ellipsoids_only() {
     assert!(ellipsoids_ok >= 9, "only {ellipsoids_ok}/10 ellipsoids recovered within 1 cm / 10 %");
     assert!(boxes_worse >= 9, "only {boxes_worse}/10 boxes fitted worse by an ellipsoid than by a superquadric");
 }
+
+/// A box resting on a table is fitted resting on it: its lowest point within 2 mm of the table's plane (at most
+/// the acceptance's 5 mm below) and its height within 3 % (or 3 mm) of the box's. The LM's support term is
+/// one-sided at the plane itself: a clearance kept above it (3 mm until this test) lifted boxes off their
+/// tables and shortened them (ycbv_0000's 2.8 cm gelatin box was fitted 2.1–2.3 cm thick).
+#[test]
+fn a_box_on_a_table_is_fitted_resting_on_it() {
+    use m2smap_core::superquadric::HalfSpace;
+    let params = Params::default();
+    let mut rng = Rng(0x2545f4914f6cdd1d);
+    // The camera looks level; the table top is 45 cm below its axis (camera y points down), so every box shows
+    // its top and one or two sides. Boxes turn about the vertical only.
+    let table = HalfSpace { normal: [0.0, -1.0, 0.0], offset: -0.45 };
+    for case in 0..12 {
+        let scales = [rng.range(0.05, 0.18), rng.range(0.04, 0.15), rng.range(0.05, 0.18)];
+        let yaw = rng.range(-1.5, 1.5);
+        let centre = [rng.range(-0.3, 0.3), 0.45 - scales[1], rng.range(1.1, 1.8)];
+        let sq =
+            Superquadric { scales, eps: [0.1, 0.1], centre, rotation: linalg::rotation_from_vector([0.0, yaw, 0.0]) };
+        let points = visible_points(&sq, 100, 0.002, &mut rng);
+        let evidence = Evidence { supports: std::slice::from_ref(&table), ..Evidence::default() };
+        let f = fit(&points, &pca(&points), &evidence, &params).expect("enough points");
+        let above = f.sq.lowest_along(table.normal) - table.offset;
+        let height = f.sq.support(table.normal) - f.sq.lowest_along(table.normal);
+        let what = format!("case {case}: box {scales:?}, fit {:?} ε {:?}", f.sq.scales, f.sq.eps);
+        assert!((-0.005..=0.002).contains(&above), "{what}: lowest point {:.1} mm above the table", above * 1e3);
+        let truth = 2.0 * scales[1];
+        assert!((height - truth).abs() <= (0.03 * truth).max(0.003), "{what}: height {height:.4} m, box {truth:.4} m");
+    }
+}
