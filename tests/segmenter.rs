@@ -207,11 +207,13 @@ fn separates_touching_objects_on_synthetic_scenes() {
 }
 
 /// `ycbv_0000` (real, close range, ground-truth ids): the table top is a supporting plane, so the foam brick
-/// resting on it is an instance of its own, and the masks cover the objects' pixels well enough that the `full`
-/// map's primitives rarely span an object and the table (measured: recall 0.67 at IoU ≥ 0.5, precision 0.50 on
-/// the claims on ground-truth objects, 0.14 over every claim, map-level adhesion 0.5 per frame, R2G 0.017 m;
-/// without the supporting planes recall 0.47, adhesion 0.9: the brick was one instance with the table; without
-/// filling the specks inside objects adhesion 1.1).
+/// resting on it is an instance of its own; the mug's inside, seen over its rim, is the mug's; and the masks
+/// cover the objects' pixels well enough that the `full` map's primitives rarely span an object and the table
+/// (measured: recall 1.00 at IoU ≥ 0.5 and precision 1.00 on the claims on ground-truth objects on all ten
+/// frames (issue targets 0.8 / 0.7), 0.24 over every claim, map-level adhesion 0.5 per frame, R2G 0.016 m;
+/// without joining the inside recall 0.67, precision 0.50: the mug was two instances; without the supporting
+/// planes recall 0.47, adhesion 0.9: the brick was one instance with the table; without filling the specks
+/// inside objects adhesion 1.1).
 #[test]
 fn separates_close_range_objects_from_their_table() {
     let Some(data) = common::shared_data("ycbv_0000") else { return };
@@ -220,8 +222,8 @@ fn separates_close_range_objects_from_their_table() {
     let value = |k: &str| s[k].as_f64().unwrap_or_else(|| panic!("{k} missing"));
     let (recall, precision, all) = (value("mask_recall"), value("mask_precision"), value("mask_precision_all"));
     println!("ycbv_0000: recall {recall:.2}, precision {precision:.2} ({all:.2} over every claim)");
-    assert!(recall >= 0.6, "recall {recall:.2}: an object is glued to the table or cut apart");
-    assert!(precision >= 0.4, "precision {precision:.2}: objects are cut into pieces");
+    assert!(recall >= 0.8, "recall {recall:.2}: an object is glued to the table or cut apart");
+    assert!(precision >= 0.7, "precision {precision:.2}: objects are cut into pieces");
     assert!(all <= precision, "every claim includes those on structure");
     assert!(value("mask_structure_claims") > 0.0, "the keyboard and the wall are claimed but unlabelled");
     assert!(value("adhesion_map") <= 0.7, "adhesion {:.2} per frame", value("adhesion_map"));

@@ -247,7 +247,8 @@ const MAX_PLANES: usize = 8;
 /// neighbouring cells with no depth jump between them and normals within [`PLANE_ANGLE_DEG`] are joined (the
 /// union-find parents in `work`), and a component of at least `min_cells` cells that is flat (smallest σ at most
 /// `FLAT_RATIO` × the middle one) and wide (largest σ ≥ `seg_structure_sigma`) is a
-/// plane. `counts` (one u16 per cell) is scratch. Returns the cells marked.
+/// plane. `counts` (one u16 per cell) and `candidates` are scratch. Returns the cells marked and the normal of the plane with the
+/// most cells, turned towards the camera (the up direction where that plane is a floor or a table).
 fn mark_planes(
     grid: &Grid<'_>,
     work: &mut [u16],
@@ -255,9 +256,10 @@ fn mark_planes(
     colours: &mut [u16],
     min_cells: u32,
     params: &Params,
-) -> u32 {
+    candidates: &mut heapless::Vec<Candidate, MAX_CANDIDATES>,
+) -> (u32, Option<Vec3>) {
     let n = grid.cols * grid.rows;
-    let (Some(parents), Some(counts)) = (work.get_mut(..n), counts.get_mut(..n)) else { return 0 };
+    let (Some(parents), Some(counts)) = (work.get_mut(..n), counts.get_mut(..n)) else { return (0, None) };
     for (i, p) in parents.iter_mut().enumerate() {
         *p = i as u16;
     }
@@ -276,13 +278,20 @@ fn mark_planes(
         }
     }
     flatten(parents);
-    let (mut candidates, _) = components(grid, parents, counts, min_cells);
+    components(grid, parents, counts, min_cells, candidates);
     // The planes (candidate slot k + 1 → plane index, in each candidate's `instance`).
     let mut planes: heapless::Vec<(Vec3, Vec3), MAX_PLANES> = heapless::Vec::new();
+    let mut largest: Option<(f32, Vec3)> = None;
     for c in candidates.iter_mut() {
         let eigen = linalg::sym_eigen(c.moments.covariance());
         if is_flat_and_wide(eigen.sigmas(), params) && planes.push((c.moments.mean(), eigen.normal())).is_ok() {
             c.instance = planes.len() as u16;
+            if largest.is_none_or(|(w, _)| c.moments.weight > w) {
+                let normal = eigen.normal();
+                let towards =
+                    if linalg::dot(normal, c.moments.mean()) > 0.0 { linalg::scale(normal, -1.0) } else { normal };
+                largest = Some((c.moments.weight, towards));
+            }
         }
     }
     let mut marked = 0;
@@ -334,7 +343,7 @@ fn mark_planes(
             }
         }
     }
-    marked
+    (marked, largest.map(|(_, up)| up))
 }
 
 /// The left, right, upper and lower neighbours of cell (cx, cy); one beyond the grid has a coordinate past its
@@ -354,15 +363,18 @@ fn flatten(parents: &mut [u16]) {
     }
 }
 
-/// The components of the flattened `parents` that cover at least `min_cells` cells with a point, as candidates
-/// with their points' moments and box, and how many found no room; `counts` (one u16 per cell) ends with each
+/// The components of the flattened `parents` that cover at least `min_cells` cells with a point, as `candidates`
+/// (the caller's: a candidate list is 7.7 KB, which a returned value would copy on the Cortex-M7's stack) with
+/// their points' moments and box; returns how many found no room. `counts` (one u16 per cell) ends with each
 /// candidate's root holding its index + 1 (0 elsewhere).
 fn components(
     grid: &Grid<'_>,
     parents: &[u16],
     counts: &mut [u16],
     min_cells: u32,
-) -> (heapless::Vec<Candidate, MAX_CANDIDATES>, u32) {
+    candidates: &mut heapless::Vec<Candidate, MAX_CANDIDATES>,
+) -> u32 {
+    candidates.clear();
     counts.fill(0);
     for (i, &root) in parents.iter().enumerate() {
         if grid.point(i).is_some() {
@@ -371,7 +383,6 @@ fn components(
             }
         }
     }
-    let mut candidates: heapless::Vec<Candidate, MAX_CANDIDATES> = heapless::Vec::new();
     let mut truncated = 0;
     for (i, c) in counts.iter_mut().enumerate() {
         let big = u32::from(*c) >= min_cells.max(1) && parents.get(i).is_some_and(|&p| p as usize == i);
@@ -394,13 +405,175 @@ fn components(
             c.hi = linalg::max_elem(c.hi, p);
         }
     }
-    (candidates, truncated)
+    truncated
 }
 
 /// Whether a component with principal scales `sigmas` (metres, largest first) is flat (smallest at most
 /// [`FLAT_RATIO`] × the middle one) and wide (largest ≥ `seg_structure_sigma`): a table top, floor or wall.
 fn is_flat_and_wide(sigmas: Vec3, params: &Params) -> bool {
     sigmas[2] <= FLAT_RATIO * sigmas[1] && sigmas[0] >= params.seg_structure_sigma
+}
+
+/// Most cells without depth between an object's inside and its outside (a rim's bright edge returns none).
+const RIM_MAX_CELLS: usize = 4;
+/// Least links across such gaps that join an inside to its outside.
+const RIM_MIN_LINKS: u16 = 3;
+/// Most pairs of objects with links across gaps one segmentation weighs (more are counted in `truncated`).
+const MAX_RIM_PAIRS: usize = 32;
+/// How far below an object's top a cell still lies on its rim ([`join_insides`]), metres.
+const RIM_BAND: f32 = 0.02;
+/// Slack of the inside test ([`join_insides`]), metres.
+const INSIDE_SLACK: f32 = 0.01;
+/// Slack of the inside test's far limit, a share of the outer object's width: the cells along a rim carry mixed
+/// depths (the mug of `ycbv_0000`, 76 mm wide as its front wall shows it, has cells of its inside 89 mm behind
+/// that wall's front).
+const INSIDE_DEPTH_SHARE: f32 = 0.25;
+
+/// The candidate (index) of cell `i`: its root's entry in `counts` ([`components`]).
+fn candidate_of(parents: &[u16], counts: &[u16], i: usize) -> Option<usize> {
+    let root = parents.get(i).copied()? as usize;
+    counts.get(root).copied().and_then(|slot| (slot as usize).checked_sub(1))
+}
+
+/// Calls `f(i, j, a, b)` for every link across a gap: cell `i` of object candidate `a` and cell `j` of object
+/// candidate `b` ≠ `a`, 2 to [`RIM_MAX_CELLS`] + 1 cells apart to the right or below, with only cells without
+/// depth or in no candidate (specks of a rim) between them. `is_object(k)`: whether candidate k is an object.
+fn for_each_gap_link(
+    grid: &Grid<'_>,
+    parents: &[u16],
+    counts: &[u16],
+    is_object: impl Fn(usize) -> bool,
+    mut f: impl FnMut(usize, usize, usize, usize),
+) {
+    for cy in 0..grid.rows {
+        for cx in 0..grid.cols {
+            let i = grid.index(cx, cy);
+            let Some(a) = candidate_of(parents, counts, i).filter(|&a| is_object(a)) else { continue };
+            if grid.point(i).is_none() {
+                continue;
+            }
+            for (dx, dy) in [(1usize, 0usize), (0, 1)] {
+                for k in 1..=RIM_MAX_CELLS + 1 {
+                    let (x, y) = (cx + k * dx, cy + k * dy);
+                    if x >= grid.cols || y >= grid.rows {
+                        break;
+                    }
+                    let j = grid.index(x, y);
+                    let Some(b) = candidate_of(parents, counts, j).filter(|_| grid.point(j).is_some()) else {
+                        continue;
+                    };
+                    // A cell next to it (no gap: the links of step 2 judged that boundary) or its own ends the walk.
+                    if k > 1 && b != a && is_object(b) {
+                        f(i, j, a, b);
+                    }
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// Joins to an object the object seen through its opening: a mug's inside (its inner wall and bottom beyond the
+/// rim) is cut from its outside by the rim, whose bright edge returns no depth, and meets it at no link. Two
+/// objects (`candidates` with an instance) are one when one of them, A, lies within the other's, B's, extent —
+/// between B's bottom and top along `up` (the largest supporting plane's normal), within B's width across the
+/// view, and along the view between B's front and B's front plus B's width (an object no deeper than it is
+/// wide) — and at least [`RIM_MIN_LINKS`] links across gaps ([`for_each_gap_link`]) join them at B's rim: B's
+/// cell within [`RIM_BAND`] of B's top. From above, the camera sees over B's rim only what lies inside B: an
+/// object behind B shows above B's top or beside it, one in front of B lies before B's front, and one seen
+/// under a table (an object whose underside is open) meets the table below its top. A takes B's instance.
+// Not inlined: its tables then occupy the stack only while it runs, not under the rest of the segmenter.
+#[inline(never)]
+fn join_insides(
+    grid: &Grid<'_>,
+    parents: &[u16],
+    counts: &[u16],
+    candidates: &mut [Candidate],
+    up: Vec3,
+    stats: &mut SegmentStats,
+) {
+    // Which candidates are objects, one bit each (MAX_CANDIDATES ≤ 128).
+    let objects = candidates.iter().enumerate().filter(|(_, c)| c.instance != 0).fold(0u128, |m, (k, _)| m | 1 << k);
+    let is_object = |k: usize| k < 128 && objects >> k & 1 == 1;
+    let mut pairs: heapless::Vec<(u16, u16), MAX_RIM_PAIRS> = heapless::Vec::new();
+    for_each_gap_link(grid, parents, counts, is_object, |_, _, a, b| {
+        let key = (a.min(b) as u16, a.max(b) as u16);
+        if !pairs.contains(&key) && pairs.push(key).is_err() {
+            stats.truncated += 1;
+        }
+    });
+    // Across the view, level: the camera's forward direction on the plane, and the horizontal axis across it.
+    let forward = linalg::normalize_or(linalg::sub([0.0, 0.0, 1.0], linalg::scale(up, up[2])), [0.0; 3]);
+    let across = linalg::cross(up, forward);
+    let height = |p: Vec3| linalg::dot(up, p);
+    for &(a, b) in &pairs {
+        // Each one's extent along up, across and forward: [min, max] × 3.
+        let mut extent = [[f32::MAX, f32::MIN, f32::MAX, f32::MIN, f32::MAX, f32::MIN]; 2];
+        for i in 0..parents.len() {
+            let k = candidate_of(parents, counts, i);
+            let which = if k == Some(a as usize) {
+                0
+            } else if k == Some(b as usize) {
+                1
+            } else {
+                continue;
+            };
+            let (Some(p), Some(e)) = (grid.point(i), extent.get_mut(which)) else { continue };
+            for (axis, pair) in [up, across, forward].iter().zip(e.chunks_exact_mut(2)) {
+                let x = linalg::dot(*axis, p);
+                if let [lo, hi] = pair {
+                    *lo = lo.min(x);
+                    *hi = hi.max(x);
+                }
+            }
+        }
+        let inside = |i: &[f32; 6], o: &[f32; 6]| {
+            let width = o[3] - o[2];
+            i[0] >= o[0] - INSIDE_SLACK
+                && i[1] <= o[1] + INSIDE_SLACK
+                && i[2] >= o[2] - INSIDE_SLACK
+                && i[3] <= o[3] + INSIDE_SLACK
+                && i[4] >= o[4] - INSIDE_SLACK
+                && i[5] <= o[4] + width + (INSIDE_DEPTH_SHARE * width).max(INSIDE_SLACK)
+        };
+        let [ea, eb] = extent;
+        // Joined, it is still no larger than an object may be.
+        let at = |e: &[f32; 6], k: usize| e.get(k).copied().unwrap_or(0.0);
+        let span = |k: usize| at(&ea, k + 1).max(at(&eb, k + 1)) - at(&ea, k).min(at(&eb, k));
+        let diagonal = libm::sqrtf(span(0) * span(0) + span(2) * span(2) + span(4) * span(4));
+        if diagonal > grid.params.seg_max_extent {
+            continue;
+        }
+        let (inner, outer, top) = if inside(&ea, &eb) {
+            (a, b, eb[1])
+        } else if inside(&eb, &ea) {
+            (b, a, ea[1])
+        } else {
+            continue;
+        };
+        // The links that meet the outer object at its rim.
+        let mut at_rim = 0u16;
+        for_each_gap_link(grid, parents, counts, is_object, |i, j, x, y| {
+            let outer_cell = if (x, y) == (inner as usize, outer as usize) {
+                j
+            } else if (x, y) == (outer as usize, inner as usize) {
+                i
+            } else {
+                return;
+            };
+            if grid.point(outer_cell).is_some_and(|p| height(p) >= top - RIM_BAND) {
+                at_rim = at_rim.saturating_add(1);
+            }
+        });
+        if at_rim < RIM_MIN_LINKS {
+            continue;
+        }
+        let instance = candidates.get(outer as usize).map_or(0, |c| c.instance);
+        if let Some(c) = candidates.get_mut(inner as usize) {
+            c.instance = instance;
+            stats.insides_joined += 1;
+        }
+    }
 }
 
 /// Marks a cell of a component too small to be an instance while the masks are filled ([`segment`]).
@@ -462,6 +635,8 @@ pub struct SegmentStats {
     pub truncated: u32,
     /// Cells on supporting planes.
     pub plane_cells: u32,
+    /// Objects joined to the object they were seen inside ([`join_insides`]).
+    pub insides_joined: u32,
 }
 
 /// Segments `frame` (depth only): writes the id image `ids` (one u16 per pixel, 0 = none; it is also the
@@ -509,7 +684,9 @@ pub fn segment(
     // 1. Supporting planes ([`mark_planes`]): their cells are marked in their colour word.
     let min_cells =
         (params.seg_min_points as f32 / params.sample_rate.max(1e-3) / (grid.step * grid.step) as f32) as u32;
-    let planes = mark_planes(&grid, scratch, parents, colours, min_cells, params);
+    // One candidate list serves the planes' components and then the objects'.
+    let mut candidates: heapless::Vec<Candidate, MAX_CANDIDATES> = heapless::Vec::new();
+    let (planes, up) = mark_planes(&grid, scratch, parents, colours, min_cells, params, &mut candidates);
     stats.plane_cells = planes;
     let colours = &*colours;
     let colour_of = |i: usize| -> [i32; 3] {
@@ -591,7 +768,7 @@ pub fn segment(
     // Components covering at least `seg_min_points` sampled points' worth of pixels become candidates;
     // `scratch[root]` then holds candidate index + 1.
     let counts = scratch.get_mut(..n).unwrap_or(&mut []);
-    let (mut candidates, truncated) = components(&grid, parents, counts, min_cells);
+    let truncated = components(&grid, parents, counts, min_cells, &mut candidates);
     stats.truncated += truncated;
     stats.components = candidates.len() as u32;
     // Structure is large, or flat and wide (a table top or a wall seen between objects); the rest are objects.
@@ -609,6 +786,10 @@ pub fn segment(
         written += 1;
         *slot = Instance { id: written as u16, class, score: params.seg_score, bbox: [u16::MAX, u16::MAX, 0, 0] };
         c.instance = written as u16;
+    }
+    // An object seen through another's opening is its inside (a mug's inner wall beyond its rim).
+    if let Some(up) = up {
+        join_insides(&grid, parents, counts, &mut candidates, up, &mut stats);
     }
     // Each cell's instance replaces its root (a root is read before its own entry is replaced: roots come first).
     // A cell of a component too small to be anything (a cell whose normal is noise, a speck between depth holes)
