@@ -20,6 +20,10 @@
 //!    it to the table. A component covering at least `seg_min_points` sampled points' worth of pixels is an
 //!    instance (label `class`, score `seg_score`) unless it is structure: a box diagonal above
 //!    `seg_max_extent`, or flat and wide as above (a table top or wall seen between objects).
+//!    An object seen over another's rim is that object's inside (a mug's inner wall and bottom, cut from its
+//!    outside by the rim's bright edge, which returns no depth): two objects whose cells face each other across
+//!    gaps of cells without depth, at the outer one's top, are one when the inner one lies within the outer
+//!    one's extent along the largest plane's normal, across the view and (as deep as it is wide) along it.
 //! 3. **Masks**: a cell of a component too small to be anything takes the instance of its neighbours on the
 //!    same surface when at least 3 of its 4 name it and none another (a hole of noisy normals inside an object
 //!    would leave its points to the table's Gaussians); every pixel with a valid depth on its cell's surface
