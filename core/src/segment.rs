@@ -423,7 +423,9 @@ const RIM_MAX_CELLS: usize = 4;
 /// Least links across such gaps that join an inside to its outside.
 const RIM_MIN_LINKS: u16 = 3;
 /// Most pairs of objects with links across gaps one segmentation weighs (more are counted in `truncated`).
-const MAX_RIM_PAIRS: usize = 32;
+const MAX_RIM_PAIRS: usize = 64;
+// `join_insides` keeps which candidates are objects in a u128.
+const _: () = assert!(MAX_CANDIDATES <= 128);
 /// How far below an object's top a cell still lies on its rim ([`join_insides`]), metres.
 const RIM_BAND: f32 = 0.02;
 /// Slack of the inside test ([`join_insides`]), metres.
@@ -499,38 +501,46 @@ fn join_insides(
     // Which candidates are objects, one bit each (MAX_CANDIDATES ≤ 128).
     let objects = candidates.iter().enumerate().filter(|(_, c)| c.instance != 0).fold(0u128, |m, (k, _)| m | 1 << k);
     let is_object = |k: usize| k < 128 && objects >> k & 1 == 1;
-    let mut pairs: heapless::Vec<(u16, u16), MAX_RIM_PAIRS> = heapless::Vec::new();
-    for_each_gap_link(grid, parents, counts, is_object, |_, _, a, b| {
-        let key = (a.min(b) as u16, a.max(b) as u16);
-        if !pairs.contains(&key) && pairs.push(key).is_err() {
-            stats.truncated += 1;
-        }
-    });
     // Across the view, level: the camera's forward direction on the plane, and the horizontal axis across it.
     let forward = linalg::normalize_or(linalg::sub([0.0, 0.0, 1.0], linalg::scale(up, up[2])), [0.0; 3]);
     let across = linalg::cross(up, forward);
-    let height = |p: Vec3| linalg::dot(up, p);
-    for &(a, b) in &pairs {
-        // Each one's extent along up, across and forward: [min, max] × 3.
-        let mut extent = [[f32::MAX, f32::MIN, f32::MAX, f32::MIN, f32::MAX, f32::MIN]; 2];
-        for i in 0..parents.len() {
-            let k = candidate_of(parents, counts, i);
-            let which = if k == Some(a as usize) {
-                0
-            } else if k == Some(b as usize) {
-                1
-            } else {
-                continue;
-            };
-            let (Some(p), Some(e)) = (grid.point(i), extent.get_mut(which)) else { continue };
-            for (axis, pair) in [up, across, forward].iter().zip(e.chunks_exact_mut(2)) {
-                let x = linalg::dot(*axis, p);
-                if let [lo, hi] = pair {
-                    *lo = lo.min(x);
-                    *hi = hi.max(x);
+    // Every object's extent along up, across and forward ([min, max] × 3), in one pass over the cells.
+    let mut extents = [[f32::MAX, f32::MIN, f32::MAX, f32::MIN, f32::MAX, f32::MIN]; MAX_CANDIDATES];
+    for i in 0..parents.len() {
+        let Some(k) = candidate_of(parents, counts, i).filter(|&k| is_object(k)) else { continue };
+        let (Some(p), Some(e)) = (grid.point(i), extents.get_mut(k)) else { continue };
+        for (axis, pair) in [up, across, forward].iter().zip(e.chunks_exact_mut(2)) {
+            let x = linalg::dot(*axis, p);
+            if let [lo, hi] = pair {
+                *lo = lo.min(x);
+                *hi = hi.max(x);
+            }
+        }
+    }
+    // The pairs of objects with links across gaps, and for each side the links that meet it at its rim (its cell
+    // within `RIM_BAND` of its top): (lower index, higher index, at the first's rim, at the second's).
+    let at_rim = |k: usize, cell: usize| {
+        let top = extents.get(k).map_or(f32::MAX, |e| e[1]);
+        grid.point(cell).is_some_and(|p| linalg::dot(up, p) >= top - RIM_BAND)
+    };
+    let mut pairs: heapless::Vec<(u16, u16, u16, u16), MAX_RIM_PAIRS> = heapless::Vec::new();
+    for_each_gap_link(grid, parents, counts, is_object, |i, j, a, b| {
+        let ((lo, lo_cell), (hi, hi_cell)) = if a < b { ((a, i), (b, j)) } else { ((b, j), (a, i)) };
+        let (rim_lo, rim_hi) = (u16::from(at_rim(lo, lo_cell)), u16::from(at_rim(hi, hi_cell)));
+        match pairs.iter_mut().find(|p| (p.0 as usize, p.1 as usize) == (lo, hi)) {
+            Some(p) => {
+                p.2 = p.2.saturating_add(rim_lo);
+                p.3 = p.3.saturating_add(rim_hi);
+            }
+            None => {
+                if pairs.push((lo as u16, hi as u16, rim_lo, rim_hi)).is_err() {
+                    stats.truncated += 1;
                 }
             }
         }
+    });
+    for &(a, b, rim_a, rim_b) in &pairs {
+        let (Some(&ea), Some(&eb)) = (extents.get(a as usize), extents.get(b as usize)) else { continue };
         let inside = |i: &[f32; 6], o: &[f32; 6]| {
             let width = o[3] - o[2];
             i[0] >= o[0] - INSIDE_SLACK
@@ -540,7 +550,6 @@ fn join_insides(
                 && i[4] >= o[4] - INSIDE_SLACK
                 && i[5] <= o[4] + width + (INSIDE_DEPTH_SHARE * width).max(INSIDE_SLACK)
         };
-        let [ea, eb] = extent;
         // Joined, it is still no larger than an object may be.
         let at = |e: &[f32; 6], k: usize| e.get(k).copied().unwrap_or(0.0);
         let span = |k: usize| at(&ea, k + 1).max(at(&eb, k + 1)) - at(&ea, k).min(at(&eb, k));
@@ -548,30 +557,13 @@ fn join_insides(
         if diagonal > grid.params.seg_max_extent {
             continue;
         }
-        let (inner, outer, top) = if inside(&ea, &eb) {
-            (a, b, eb[1])
-        } else if inside(&eb, &ea) {
-            (b, a, ea[1])
+        let (inner, outer) = if rim_b >= RIM_MIN_LINKS && inside(&ea, &eb) {
+            (a, b)
+        } else if rim_a >= RIM_MIN_LINKS && inside(&eb, &ea) {
+            (b, a)
         } else {
             continue;
         };
-        // The links that meet the outer object at its rim.
-        let mut at_rim = 0u16;
-        for_each_gap_link(grid, parents, counts, is_object, |i, j, x, y| {
-            let outer_cell = if (x, y) == (inner as usize, outer as usize) {
-                j
-            } else if (x, y) == (outer as usize, inner as usize) {
-                i
-            } else {
-                return;
-            };
-            if grid.point(outer_cell).is_some_and(|p| height(p) >= top - RIM_BAND) {
-                at_rim = at_rim.saturating_add(1);
-            }
-        });
-        if at_rim < RIM_MIN_LINKS {
-            continue;
-        }
         let instance = candidates.get(outer as usize).map_or(0, |c| c.instance);
         if let Some(c) = candidates.get_mut(inner as usize) {
             c.instance = instance;
