@@ -154,6 +154,18 @@ impl<'a> Frame<'a> {
         }
     }
 
+    /// The raw depth of pixel (u, v) (column, row); 0 (no measurement) outside the image.
+    #[inline]
+    pub fn raw_at(&self, u: i32, v: i32) -> u16 {
+        let inside = u >= 0 && v >= 0 && u < i32::from(self.width) && v < i32::from(self.height);
+        let i = v as usize * usize::from(self.width) + u as usize;
+        if inside {
+            self.depth.get(i).copied().unwrap_or(0)
+        } else {
+            0
+        }
+    }
+
     /// The nearest and the farthest raw depth within `range` (inclusive) in the square window of ±`radius`
     /// pixels around pixel (u, v), clipped to the image; `None` when no pixel of the window has such a depth.
     pub fn depth_window(&self, u: i32, v: i32, radius: i32, range: (u16, u16)) -> Option<(u16, u16)> {

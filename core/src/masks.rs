@@ -154,9 +154,7 @@ impl<'a> MaskSet<'a> {
         match self.pixels {
             MaskPixels::IdImage(ids) => {
                 let i = v as usize * self.width as usize + u as usize;
-                ids.get(i).is_some_and(|&id| {
-                    id != 0 && id != own && self.instances.iter().any(|inst| inst.id == id && usable(inst))
-                })
+                ids.get(i).is_some_and(|&id| id != 0 && self.instances.iter().any(|inst| inst.id == id && usable(inst)))
             }
             MaskPixels::BitPlanes(_) => {
                 self.instances.iter().enumerate().any(|(k, inst)| usable(inst) && self.contains(k, u, v))

@@ -299,9 +299,8 @@ fn mark_planes(
         }
     }
     let mut marked = 0;
-    for (i, &root) in parents.iter().enumerate() {
-        let slot = counts.get(root as usize).copied().unwrap_or(0) as usize;
-        let plane = slot.checked_sub(1).and_then(|k| candidates.get(k)).map_or(0, |c| c.instance);
+    for i in 0..parents.len() {
+        let plane = candidate_of(parents, counts, i).and_then(|k| candidates.get(k)).map_or(0, |c| c.instance);
         if let (Some(b), true) = (colours.get_mut(2 * i + 1), plane > 0 && grid.point(i).is_some()) {
             *b = (*b & 0xff) | PLANE_FLAG | (plane - 1) << PLANE_SHIFT;
             marked += 1;
@@ -401,9 +400,10 @@ fn components(
             }
         }
     }
-    for (i, &root) in parents.iter().enumerate() {
-        let slot = counts.get(root as usize).copied().unwrap_or(0) as usize;
-        if let (Some(c), Some(p)) = (slot.checked_sub(1).and_then(|k| candidates.get_mut(k)), grid.point(i)) {
+    for i in 0..parents.len() {
+        if let (Some(c), Some(p)) =
+            (candidate_of(parents, counts, i).and_then(|k| candidates.get_mut(k)), grid.point(i))
+        {
             c.moments.add(p, 1.0);
             c.lo = linalg::min_elem(c.lo, p);
             c.hi = linalg::max_elem(c.hi, p);
@@ -791,9 +791,7 @@ pub fn segment(
     // A cell of a component too small to be anything (a cell whose normal is noise, a speck between depth holes)
     // is marked [`FILL`] instead of 0.
     for i in 0..n {
-        let root = parents.get(i).copied().unwrap_or(0) as usize;
-        let slot = counts.get(root).copied().unwrap_or(0) as usize;
-        let instance = match slot.checked_sub(1).and_then(|k| candidates.get(k)) {
+        let instance = match candidate_of(parents, counts, i).and_then(|k| candidates.get(k)) {
             Some(c) => c.instance,
             None if grid.point(i).is_some() && !on_plane(i) => FILL,
             None => 0,

@@ -758,8 +758,8 @@ fn abuts_other_object(
     let bound = linalg::add(sq.centre, linalg::mat_vec(&sq.rotation, l));
     let beyond = linalg::add(bound, linalg::scale(out, SEEN_END_STEP));
     let Some([u, v]) = pixel_of(frame, beyond) else { return false };
+    let raw = frame.raw_at(u, v);
     let (Ok(u), Ok(v)) = (u16::try_from(u), u16::try_from(v)) else { return false };
-    let raw = frame.depth.get(usize::from(v) * usize::from(frame.width) + usize::from(u)).copied().unwrap_or(0);
     let (lo, hi) = frame.raw_range(params);
     if raw < lo || raw > hi {
         return false;
@@ -815,12 +815,11 @@ fn reaches_along_seen_face(sq: &Superquadric, l: Vec3, k: usize) -> bool {
 /// beyond the top's edge, whose neighbours are the top itself.)
 fn ends_where_seen(sq: &Superquadric, l: Vec3, away: Vec3, frame: &Frame<'_>, params: &Params) -> bool {
     let bound = linalg::add(sq.centre, linalg::mat_vec(&sq.rotation, l));
-    let w = usize::from(frame.width);
     let (lo, hi) = frame.raw_range(params);
     for step in [SEEN_END_STEP, 2.0 * SEEN_END_STEP] {
         let beyond = linalg::add(bound, linalg::scale(away, step));
         let Some([u, v]) = pixel_of(frame, beyond) else { return false };
-        let raw = frame.depth.get(v as usize * w + u as usize).copied().unwrap_or(0);
+        let raw = frame.raw_at(u, v);
         if raw > hi {
             return beyond[2] < params.depth_max;
         }
@@ -856,9 +855,8 @@ enum Observed {
 /// depth tolerance σ-margin ([`Params::depth_tolerance`]) taken off the nearest and added to the farthest.
 fn observed_at(frame: &Frame<'_>, params: &Params, p: Vec3, radius: i32) -> Observed {
     let Some([u, v]) = pixel_of(frame, p) else { return Observed::Outside };
-    let w = i32::from(frame.width);
     let range = frame.raw_range(params);
-    let own = frame.depth.get(v as usize * w as usize + u as usize).copied().unwrap_or(0);
+    let own = frame.raw_at(u, v);
     if !(range.0..=range.1).contains(&own) {
         return Observed::Unknown;
     }
