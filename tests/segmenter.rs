@@ -76,6 +76,48 @@ fn finds_objects_that_stand_apart_and_keeps_them_unglued() {
     assert!(precision >= 0.9, "segmenter precision {precision:.2}");
 }
 
+/// Cells whose centre pixel is a depth hole (an object's edge, a rim) have no point of their own; each takes the
+/// instance of the neighbouring cell on whose surface it lies, so the objects' masks keep those cells' pixels:
+/// with a hole punched at the centre pixel of every cell on an object's outline, the objects' mean IoU stays
+/// within 0.02 of the unpunched frame's (measured: 0.940 with 194 such cells, 97 of them adopted, against 0.936;
+/// without the adoption 0.897 against 0.932).
+#[test]
+fn cells_with_a_hole_at_their_centre_keep_their_objects_pixels() {
+    let scene = Scene::named("tabletop").unwrap();
+    let mut frame = scene.render(2, Some(5));
+    let gt = scene.instance_image(&frame);
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+    let mut segment = |frame: &m2smap::synth::SynthFrame| {
+        let mut ids = vec![0u16; gt.len()];
+        let mut instances = [Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; 16];
+        let stats = mapper.segment(frame.frame.view(&scene.camera), &mut ids, &mut instances, 0).unwrap();
+        let (best, _) = score(&gt, &ids, &instances[..stats.instances as usize]);
+        (best.iter().sum::<f64>() / best.len().max(1) as f64, stats.holed_cells_adopted)
+    };
+    let (plain, _) = segment(&frame);
+    // 640 × 480 frames are segmented in cells of 4 × 4 pixels; a cell's centre pixel is (4x + 2, 4y + 2). Every
+    // cell on an object's outline (its block holds pixels of two ground-truth ids) loses its centre's depth.
+    let mut punched = 0;
+    for y in 0..120 {
+        for x in 0..160 {
+            let block = (0..16).map(|k| gt[(4 * y + k / 4) * 640 + 4 * x + k % 4]);
+            let first = gt[4 * y * 640 + 4 * x];
+            if block.clone().any(|id| id != first) && block.clone().any(|id| id != 0) {
+                frame.frame.depth[(4 * y + 2) * 640 + 4 * x + 2] = 0;
+                punched += 1;
+            }
+        }
+    }
+    let (holed, adopted) = segment(&frame);
+    println!(
+        "tabletop frame 2: mean IoU {plain:.3}, {holed:.3} with {punched} outline cells holed ({adopted} adopted)"
+    );
+    assert!(plain >= 0.9, "mean IoU {plain:.3} without holes");
+    assert!(adopted >= punched / 4, "{adopted} of {punched} holed cells took an instance");
+    assert!(holed >= plain - 0.02, "mean IoU {holed:.3} with holes, {plain:.3} without");
+}
+
 #[test]
 fn segments_the_cabinet_like_its_masks() {
     let Some(data) = common::shared_data("tum_fr3_cabinet") else { return };
@@ -210,7 +252,8 @@ fn separates_touching_objects_on_synthetic_scenes() {
 /// resting on it is an instance of its own; the mug's inside, seen over its rim, is the mug's; and the masks
 /// cover the objects' pixels well enough that the `full` map's primitives rarely span an object and the table
 /// (measured: recall 1.00 at IoU ≥ 0.5 and precision 1.00 on the claims on ground-truth objects on all ten
-/// frames (issue targets 0.8 / 0.7), 0.24 over every claim, map-level adhesion 0.5 per frame, R2G 0.016 m;
+/// frames (issue targets 0.8 / 0.7), 0.24 over every claim, map-level adhesion 0.1 per frame (issue target 0.3;
+/// 0.5 before the cells with a depth hole at their centre took their neighbours' instance), R2G 0.016 m;
 /// without joining the inside recall 0.67, precision 0.50: the mug was two instances; without the supporting
 /// planes recall 0.47, adhesion 0.9: the brick was one instance with the table; without filling the specks
 /// inside objects adhesion 1.1).
@@ -226,7 +269,7 @@ fn separates_close_range_objects_from_their_table() {
     assert!(precision >= 0.7, "precision {precision:.2}: objects are cut into pieces");
     assert!(all <= precision, "every claim includes those on structure");
     assert!(value("mask_structure_claims") > 0.0, "the keyboard and the wall are claimed but unlabelled");
-    assert!(value("adhesion_map") <= 0.7, "adhesion {:.2} per frame", value("adhesion_map"));
+    assert!(value("adhesion_map") <= 0.3, "adhesion {:.2} per frame", value("adhesion_map"));
     assert!(value("r2g_rmse_m") <= 0.03, "R2G {:.3} m: something observed is not mapped", value("r2g_rmse_m"));
 }
 

@@ -26,8 +26,10 @@
 //!    one's extent along the largest plane's normal, across the view and (as deep as it is wide) along it.
 //! 3. **Masks**: a cell of a component too small to be anything takes the instance of its neighbours on the
 //!    same surface when at least 3 of its 4 name it and none another (a hole of noisy normals inside an object
-//!    would leave its points to the table's Gaussians); every pixel with a valid depth on its cell's surface
-//!    takes the cell's instance.
+//!    would leave its points to the table's Gaussians). A cell whose centre pixel is a depth hole (an object's
+//!    edge, a rim) has no point of its own: next to an object's cell it takes the instance of the neighbour on
+//!    whose tangent plane its first valid pixel nearest the centre lies (or none, when that is a plane's or
+//!    background cell). Every pixel with a valid depth on its cell's surface takes the cell's instance.
 //!
 //! No per-cell pool: the union-find parents, the cells' depths, quantised normals and colours (with each plane
 //! cell's plane in the colour word's spare bits) live in the id image before the masks are written over them;
@@ -82,9 +84,10 @@ struct Grid<'f> {
     depth: &'f [u16],
     /// Each cell's unit normal × 32767 as three i16 bit patterns (all 0 = none), once computed.
     normals: &'f [u16],
-    /// Each cell's point (three f32 as six u16 halves, low half first), once computed: [`Grid::point_at`]
-    /// reads it instead of back-projecting the cell again (each cell's point is wanted about eight times).
-    points: &'f [u16],
+    /// Each cell's point (camera frame, metres; all 0 without one), once computed, for as many cells as it
+    /// holds: [`Grid::point_at`] reads it instead of back-projecting the cell again (each cell's point is wanted
+    /// about eight times).
+    points: &'f [Vec3],
 }
 
 impl<'f> Grid<'f> {
@@ -165,13 +168,13 @@ impl<'f> Grid<'f> {
             return None;
         }
         let i = cy * self.cols + cx;
+        if let Some(p) = self.points.get(i) {
+            // A cell with a point has z ≥ `depth_min` > 0.
+            return (p[2] != 0.0).then_some(*p);
+        }
         let raw = self.depth.get(i).copied().unwrap_or(0);
         if raw == 0 {
             return None;
-        }
-        if let Some(&[x0, x1, y0, y1, z0, z1]) = self.points.get(6 * i..6 * i + 6) {
-            let f = |lo: u16, hi: u16| f32::from_bits(lo as u32 | (hi as u32) << 16);
-            return Some([f(x0, x1), f(y0, y1), f(z0, z1)]);
         }
         let (u, v) =
             ((cx * self.step) as f32 + 0.5 * self.step as f32, (cy * self.step) as f32 + 0.5 * self.step as f32);
@@ -180,6 +183,9 @@ impl<'f> Grid<'f> {
 
     /// [`Grid::point_at`] of cell index `i`.
     fn point(&self, i: usize) -> Option<Vec3> {
+        if let Some(p) = self.points.get(i) {
+            return (p[2] != 0.0).then_some(*p);
+        }
         self.point_at(i % self.cols.max(1), i / self.cols.max(1))
     }
 
@@ -232,6 +238,83 @@ impl<'f> Grid<'f> {
         let n = if linalg::dot(n, p) > 0.0 { linalg::scale(n, -1.0) } else { n };
         (linalg::dot(n, n) > 0.5).then_some((p, n))
     }
+}
+
+/// The raw depth a cell of `step × step` pixels from (u0, v0) is measured against: its centre pixel's when it
+/// lies in the depth range (`lo..=hi`), else the first in-range pixel of its block nearest the centre (rings of
+/// growing Chebyshev distance, each in raster order); `None` when the block has none.
+#[inline(never)]
+fn reference_depth(frame: &Frame<'_>, (lo, hi): (u16, u16), (u0, v0): (usize, usize), step: usize) -> Option<u16> {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let (uc, vc) = ((u0 + step / 2).min(w.saturating_sub(1)), (v0 + step / 2).min(h.saturating_sub(1)));
+    let valid = |u: usize, v: usize| frame.depth.get(v * w + u).copied().filter(|r| (lo..=hi).contains(r));
+    if let Some(r) = valid(uc, vc) {
+        return Some(r);
+    }
+    let (u1, v1) = ((u0 + step).min(w), (v0 + step).min(h));
+    for ring in 1..step {
+        for v in vc.saturating_sub(ring).max(v0)..(vc + ring + 1).min(v1) {
+            for u in uc.saturating_sub(ring).max(u0)..(uc + ring + 1).min(u1) {
+                if u.abs_diff(uc).max(v.abs_diff(vc)) == ring {
+                    if let Some(r) = valid(u, v) {
+                        return Some(r);
+                    }
+                }
+            }
+        }
+    }
+    None
+}
+
+/// Gives each holed cell — its centre pixel fell into a depth hole (an object's edge, a mug's rim), so it has no
+/// point and took no part in the components — the instance (or none) of the neighbouring cell on whose surface
+/// it lies: its reference point ([`reference_depth`] at the cell's centre pixel) within that neighbour's depth
+/// jump and nearest to the neighbour's tangent plane, at most the depth tolerance from it. `instances` holds
+/// each cell's instance (0: none) and is updated in a raster sweep that reads only cells with a point. Returns
+/// the cells that took an instance. (Without it, 30–40 % of the cells left out of ycbv_0000's objects' masks
+/// were holed cells, and their pixels went to the Gaussians of the table the objects stand on.)
+#[inline(never)]
+fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
+    let frame = grid.frame;
+    let (lo, hi) = frame.raw_range(grid.params);
+    let mut adopted = 0;
+    for cy in 0..grid.rows {
+        for cx in 0..grid.cols {
+            let i = grid.index(cx, cy);
+            // Only a holed cell next to an object's cell may take an instance.
+            let next_to_object = || {
+                four_neighbours(cx, cy).iter().any(|&(x, y)| {
+                    x < grid.cols && y < grid.rows && instances.get(grid.index(x, y)).is_some_and(|&id| id != 0)
+                })
+            };
+            if grid.point(i).is_some() || !next_to_object() {
+                continue;
+            }
+            let Some(raw) = reference_depth(frame, (lo, hi), (cx * grid.step, cy * grid.step), grid.step) else {
+                continue;
+            };
+            let (u, v) =
+                ((cx * grid.step) as f32 + 0.5 * grid.step as f32, (cy * grid.step) as f32 + 0.5 * grid.step as f32);
+            let p = frame.intrinsics.unproject(u - 0.5, v - 0.5, frame.metres(raw));
+            let mut best: Option<(f32, u16)> = None;
+            for (x, y) in four_neighbours(cx, cy) {
+                let Some((q, normal)) = grid.cached_surfel(x, y) else { continue };
+                if libm::fabsf(q[2] - p[2]) > grid.jump(q[2]) {
+                    continue;
+                }
+                let off = libm::fabsf(linalg::dot(normal, linalg::sub(p, q)));
+                let Some(&instance) = instances.get(grid.index(x, y)) else { continue };
+                if off <= grid.params.depth_tolerance(p[2]) && best.is_none_or(|(b, _)| off < b) {
+                    best = Some((off, instance));
+                }
+            }
+            if let (Some((_, instance)), Some(x)) = (best.filter(|&(_, id)| id != 0), instances.get_mut(i)) {
+                *x = instance;
+                adopted += 1;
+            }
+        }
+    }
+    adopted
 }
 
 /// Bit of a cell's blue colour word (the colour takes 8 bits) that marks it as a supporting plane's cell.
@@ -633,6 +716,8 @@ pub struct SegmentStats {
     pub plane_cells: u32,
     /// Objects joined to the object they were seen inside ([`join_insides`]).
     pub insides_joined: u32,
+    /// Cells without a point of their own that took a neighbour's instance ([`adopt_holed_cells`]).
+    pub holed_cells_adopted: u32,
 }
 
 /// Segments `frame` (depth only): writes the id image `ids` (one u16 per pixel, 0 = none; it is also the
@@ -656,18 +741,16 @@ pub fn segment(
     let (depth, rest) = rest.split_at_mut(n.min(rest.len()));
     let (normals, rest) = rest.split_at_mut((3 * n).min(rest.len()));
     let (colours, rest) = rest.split_at_mut((2 * n).min(rest.len()));
-    // The points' cache when the id image has room for it (13 u16 per cell; a grid of 4-pixel cells needs 13
-    // of the 16 pixels' ids), else every point is back-projected where it is wanted.
-    let points = rest.get_mut(..6 * n).unwrap_or(&mut []);
+    // The points' cache in the rest of the id image (13 u16 per cell in all; a grid of 4-pixel cells has 16
+    // pixels' ids per cell), for as many cells as it has room for (the rest, e.g. of an id image not aligned for
+    // f32, are back-projected where they are wanted).
+    let (_, points, _) = bytemuck::pod_align_to_mut::<u16, Vec3>(rest);
+    let cached = points.len().min(n);
+    let points = points.get_mut(..cached).unwrap_or(&mut []);
     Grid::fill(frame, params, layout, depth, colours);
     let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth, normals: &[], points: &[] };
-    for (i, q) in points.chunks_exact_mut(6).enumerate() {
-        let p = grid.point(i).unwrap_or([0.0; 3]);
-        for (pair, x) in q.chunks_exact_mut(2).zip(p) {
-            if let [lo, hi] = pair {
-                (*lo, *hi) = (x.to_bits() as u16, (x.to_bits() >> 16) as u16);
-            }
-        }
+    for (i, q) in points.iter_mut().enumerate() {
+        *q = grid.point(i).unwrap_or([0.0; 3]);
     }
     let grid = Grid { points, ..grid };
     for (i, q) in normals.chunks_exact_mut(3).enumerate() {
@@ -834,6 +917,7 @@ pub fn segment(
     for x in parents.iter_mut().filter(|x| **x == FILL) {
         *x = 0;
     }
+    stats.holed_cells_adopted = adopt_holed_cells(&grid, parents);
     // 3. Masks: every pixel with a valid depth near its cell's takes the cell's instance. Pixels are written
     // from the last: pixel i's cell index is at most i, so no cell is overwritten before its pixels are done.
     let (lo, hi) = frame.raw_range(params);
@@ -850,6 +934,13 @@ pub fn segment(
             // The pixel must lie on its cell's surface: within the jump tolerance of the cell's centre pixel.
             let uc = (cx * step + step / 2).min(w - 1);
             let centre = frame.depth.get(vc * w + uc).copied().unwrap_or(0);
+            // A cell whose centre pixel has no depth is measured against its reference pixel when it took an
+            // instance ([`adopt_holed_cells`]).
+            let centre = if (lo..=hi).contains(&centre) || instance == 0 {
+                centre
+            } else {
+                reference_depth(frame, (lo, hi), (cx * step, v0), step).unwrap_or(0)
+            };
             let tolerance = if (lo..=hi).contains(&centre) {
                 Some((surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32)
             } else {
