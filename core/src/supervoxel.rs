@@ -286,9 +286,11 @@ pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16, 
 /// One sampled point as voxelisation met it: its pixel and the voxel it fell into. The list of a frame's points
 /// in pixel order lets every later pass visit them without sampling, back-projecting and hashing them again
 /// ([`for_each_voxel_point`]); a profile without room for it (the `mcu` one) re-derives them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Zeroable)]
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 #[repr(C)]
 pub struct SampledPoint {
+    /// Camera-frame position, metres (as [`points::Point::from_pixel`] back-projected it).
+    pub xyz: Vec3,
     /// Pixel column, pixels.
     pub u: u16,
     /// Pixel row, pixels.
@@ -355,7 +357,10 @@ fn for_each_listed_point(
         if s.u < window.u0 || s.u > window.u1 {
             continue;
         }
-        let Some(p) = points::Point::at(frame, s.u as usize, s.v as usize) else { continue };
+        // The listed position (no division again); the colour from the frame.
+        let i = s.v as usize * frame.width as usize + s.u as usize;
+        let Some(&[r, g, b]) = frame.colour.get(3 * i..3 * i + 3) else { continue };
+        let p = points::Point { u: s.u, v: s.v, xyz: s.xyz, rgb: [r, g, b] };
         f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
     }
 }
@@ -433,7 +438,8 @@ fn add_points<const LIST: bool>(
         let voxel =
             add_point(p, r, max_index, point_slot(masks, params, p.u, p.v, &mut slot_cache), voxels, slots, &mut stats);
         if LIST {
-            let _ = sampled.push(SampledPoint { u: p.u, v: p.v, voxel: voxel.map_or(NO_VOXEL, |i| i as u16) });
+            let _ =
+                sampled.push(SampledPoint { xyz: p.xyz, u: p.u, v: p.v, voxel: voxel.map_or(NO_VOXEL, |i| i as u16) });
         }
     });
     stats.mask_pixels_outside_boxes = slot_cache.saw_pixel_outside_box();

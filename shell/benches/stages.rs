@@ -7,8 +7,7 @@
 //! --segmenter geometric`) runs before stage 1 and its masks then go through the stages as file masks do. Its
 //! masks depend only on the frame, so they are made beforehand by `process_segmented` in the same schedule, and
 //! the timed pass runs the stages with them, checked to map the same; the segmenter's own time
-//! (process_segmented's minus the replay's, on the `mmp` pair whose stages have no superquadric search to blur
-//! it) is printed below the table. The segmenter and
+//! (`Mapper::segment` alone, timed in the same schedule) is printed below the table. The segmenter and
 //! ycbv rows, like `m2smap run`, map with the dataset's poses (superquadric tracks in the world frame); the
 //! cabinet and no-mask redkitchen rows keep the camera frame, as before.
 //!
@@ -100,7 +99,8 @@ fn bench<P: Profile>(storage: &mut P, params: Params, camera: &Camera, frames: &
 
 /// The frames with the geometric segmenter's masks (`Mapper::process_segmented`, as `m2smap run --segmenter
 /// geometric`), each frame run `REPS` times in the schedule of [`bench`]: the masked frames, and per (frame,
-/// repetition) the milliseconds of `process_segmented` (segmenter included) and its report.
+/// repetition) the milliseconds of the segmenter alone (`Mapper::segment`) and the report of
+/// `process_segmented`.
 fn segmenter_frames<P: Profile>(
     storage: &mut P,
     params: Params,
@@ -117,9 +117,11 @@ fn segmenter_frames<P: Profile>(
         let mut ids = vec![0u16; view.pixels()];
         let mut k = 0;
         for _ in 0..REPS {
+            // The segmenter alone first (it leaves the map and tracks as they were), then the whole frame.
             let t0 = Instant::now();
-            let (report, n) = mapper.process_segmented(view, &mut ids, &mut instances, class).expect("valid frame");
+            mapper.segment(view, &mut ids, &mut instances, class).expect("valid frame");
             ms.push(t0.elapsed().as_secs_f64() * 1e3);
+            let (report, n) = mapper.process_segmented(view, &mut ids, &mut instances, class).expect("valid frame");
             reports.push(report);
             k = n;
         }
@@ -137,15 +139,14 @@ fn segmenter_frames<P: Profile>(
 /// [`bench`] with the geometric segmenter's masks, which it runs between stages 3 and 4 where no stage hook
 /// reaches: the masks are made beforehand ([`segmenter_frames`]; they depend on the frame only) and the stages
 /// replayed as `process_segmented` runs them, checked to map the same. Returns the stage timing, the masked
-/// frames and the segmenter's own milliseconds per (frame, repetition) (process_segmented's total minus the
-/// replay's).
+/// frames and the segmenter's own milliseconds per (frame, repetition) (`Mapper::segment` alone).
 fn bench_segmented<P: Profile>(
     storage: &mut P,
     params: Params,
     camera: &Camera,
     frames: &Frames,
 ) -> (Timing, Frames, Vec<f64>) {
-    let (masked, whole, reports) = segmenter_frames(&mut *storage, params, camera, frames);
+    let (masked, seg, reports) = segmenter_frames(&mut *storage, params, camera, frames);
     let t = bench(&mut *storage, params, camera, &masked, false);
     let same = |a: &FrameReport, b: &FrameReport| {
         (a.points, a.gaussians, a.annotated, a.clusters, a.planes, a.objects, a.sqs, a.sq_rejected, a.tracks)
@@ -153,7 +154,6 @@ fn bench_segmented<P: Profile>(
     };
     let differ = t.reports.iter().zip(&reports).filter(|(a, b)| !same(a, b)).count();
     assert_eq!(differ, 0, "the staged replay maps {differ} frames otherwise than process_segmented");
-    let seg = whole.iter().zip(&t.times[6]).map(|(w, s)| w - s).collect();
     (t, masked, seg)
 }
 
@@ -233,12 +233,12 @@ fn main() {
             row(&format!("{name} (host, segmenter masks)"), posed.len(), &t);
             let (t, _, seg) = bench_segmented(&mut *host, mmp, &camera, &posed);
             row(&format!("{name} (host, segmenter masks, mmp)"), posed.len(), &t);
-            // The segmenter's own time from the mmp pair (no superquadric search, so little timing noise).
+            // The segmenter's own time, from the mmp pair.
             let instances = median(
                 &masked.iter().map(|f| f.masks.as_ref().map_or(0.0, |m| m.instances.len() as f64)).collect::<Vec<_>>(),
             );
             notes.push(format!(
-                "{name}: the geometric segmenter itself takes {:.3} ms per frame more, in neither row's stage columns (process_segmented minus the staged replay, variant mmp; median {instances:.0} instances per frame)",
+                "{name}: the geometric segmenter itself takes {:.3} ms per frame more, in neither row's stage columns (`Mapper::segment` alone; median {instances:.0} instances per frame)",
                 median(&seg)
             ));
             let t = bench(&mut *host, full, &camera, &masked, true);
