@@ -38,18 +38,6 @@ impl Point {
             ],
         }
     }
-
-    /// The point of pixel (u, v) of `frame` (no range or sample test); `None` outside the image.
-    #[inline]
-    pub fn at(frame: &Frame<'_>, u: usize, v: usize) -> Option<Point> {
-        let w = frame.width as usize;
-        if u >= w {
-            return None;
-        }
-        let i = v * w + u;
-        let (&raw, rgb) = (frame.depth.get(i)?, frame.colour.get(3 * i..3 * i + 3)?);
-        Some(Point::from_pixel(frame, u, v, raw, rgb))
-    }
 }
 
 /// The 32-bit mixing function of the sampler ("lowbias32", a bijection with good avalanche).

@@ -283,9 +283,9 @@ pub fn point_slot(masks: Option<&MaskSet<'_>>, params: &Params, u: u16, v: u16, 
     masks.map_or(0, |m| m.voxel_slot_cached(u, v, params.min_confidence, cache))
 }
 
-/// One sampled point as voxelisation met it: its pixel and the voxel it fell into. The list of a frame's points
-/// in pixel order lets every later pass visit them without sampling, back-projecting and hashing them again
-/// ([`for_each_voxel_point`]); a profile without room for it (the `mcu` one) re-derives them.
+/// One sampled point as voxelisation met it: its position, its pixel and the voxel it fell into. The list of a
+/// frame's points in pixel order lets every later pass visit them without sampling, back-projecting and hashing
+/// them again ([`for_each_voxel_point`]); a profile without room for it (the `mcu` one) re-derives them.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 #[repr(C)]
 pub struct SampledPoint {
