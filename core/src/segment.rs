@@ -714,9 +714,9 @@ pub struct SegmentStats {
     pub truncated: u32,
     /// Cells on supporting planes.
     pub plane_cells: u32,
-    /// Objects joined to the object they were seen inside ([`join_insides`]).
+    /// Objects joined to the object they were seen inside (`join_insides`).
     pub insides_joined: u32,
-    /// Cells without a point of their own that took a neighbour's instance ([`adopt_holed_cells`]).
+    /// Cells without a point of their own that took a neighbour's instance (`adopt_holed_cells`).
     pub holed_cells_adopted: u32,
 }
 

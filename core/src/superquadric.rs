@@ -871,8 +871,8 @@ fn observed_at(frame: &Frame<'_>, params: &Params, p: Vec3, radius: i32) -> Obse
 }
 
 /// Whether a point at pixel (`u`, `v`) and depth `z` (metres) lies just behind an edge of its own mask: a pixel
-/// within [`EDGE_WINDOW`] pixels that `own` covers has a valid depth nearer than `z` by more than the depth
-/// tolerance plus the most any surface seen less edge-on than [`GRAZING_COS`] changes in depth over that many
+/// within `EDGE_WINDOW` pixels that `own` covers has a valid depth nearer than `z` by more than the depth
+/// tolerance plus the most any surface seen less edge-on than `GRAZING_COS` changes in depth over that many
 /// pixels (a box's top seen from 16° changes by 3 cm over 2 pixels at 2.4 m: a slope, not an edge). There a mask
 /// that reaches a pixel or two past its object's silhouette (dilated, misaligned) lends the object the
 /// background behind it, and the superquadric fit leaves such points out. The object's own silhouette is the
@@ -1724,7 +1724,7 @@ pub struct FrontView {
 /// The camera-facing samples of `sq` (grid about max(1 cm, largest half-axis / 3) apart) judged against the
 /// frame ([`FrontView`]; a pixel without depth is unknown: sensors drop the depth along object edges, where the
 /// object may well be). For every k-th free sample (k from the grid's size and `out`'s length) a probe goes on
-/// its ray inside the shape but still in front of the free-space limit ([`free_probe_depth`]).
+/// its ray inside the shape but still in front of the free-space limit (`free_probe_depth`).
 pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &mut [Vec3]) -> FrontView {
     enum Seen {
         Outside,
