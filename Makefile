@@ -39,13 +39,15 @@ test: lint core-nostd firmware-check
 		sort target/skipped-tests.txt | sed 's/^/  /'; \
 	else echo "make test: no test skipped"; fi
 
-## Formatting (rustfmt.toml) of the workspace, the firmware and its decoder, and clippy with every warning an
-## error (the core's deny(clippy::indexing_slicing, ...) included) over every target of the workspace.
+## Formatting (rustfmt.toml) of the workspace, the firmware and its decoder, clippy with every warning an
+## error (the core's deny(clippy::indexing_slicing, ...) included) over every target of the workspace, and the
+## API docs with every rustdoc warning an error (no broken or private intra-doc links).
 lint:
 	$(CARGO) fmt --check
 	cd firmware && $(CARGO) fmt --check
 	cd firmware/defmt-decode && $(CARGO) fmt --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	RUSTDOCFLAGS="-D warnings" $(CARGO) doc --no-deps --workspace -q
 
 ## The core must build for a bare-metal Cortex-M7 target: no std, no allocator.
 core-nostd:
