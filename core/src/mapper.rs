@@ -175,6 +175,9 @@ pub struct Mapper<'s> {
     sampled: Bounded<'s, supervoxel::SampledPoint>,
     /// Whether `sampled` lists every sampled point of the current frame over its depth range.
     sampled_complete: bool,
+    /// The depth buffer (address and length) `sampled` was listed from: the list, which keeps each point's
+    /// position, serves a caller's frame only when it is that one ([`Mapper::for_each_labelled_point`]).
+    sampled_from: (usize, usize),
     /// Each voxel's centroid and neighbours ([`supervoxel::VoxelLinks`]).
     links: &'s mut [supervoxel::VoxelLinks],
     /// Whether `links` holds an entry for every voxel of the current frame.
@@ -215,6 +218,7 @@ impl<'s> Mapper<'s> {
             sq_points_peak: 0,
             sampled: Bounded::new(parts.sampled),
             sampled_complete: false,
+            sampled_from: (0, 0),
             links: parts.links,
             linked: false,
             patches: [bytemuck::Zeroable::zeroed(); plane::MAX_FLAT_PATCHES],
@@ -364,6 +368,7 @@ impl<'s> Mapper<'s> {
             stats.dropped_points += in_range.saturating_sub(stats.points);
         }
         self.sampled_complete = self.sampled.capacity() > 0 && self.sampled.usage().overflow_events == 0;
+        self.sampled_from = depth_buffer(&checked.frame);
         self.masks_within_boxes = voxel_masks.is_some_and(|m| matches!(m.pixels, crate::masks::MaskPixels::IdImage(_)))
             && !stats.mask_pixels_outside_boxes;
         self.report.voxel_range_m = self.params.depth_max;
@@ -1046,18 +1051,25 @@ impl<'s> Mapper<'s> {
     }
 
     /// Calls `f(point, voxel)` for every sampled point of `checked` with the voxel it fell into (labels tell
-    /// its supervoxel and Gaussian). `checked` must be the frame last processed for the labels to mean anything.
+    /// its supervoxel and Gaussian). `checked` must be the frame last processed for the labels to mean anything;
+    /// the points themselves are `checked`'s (another frame's are sampled from it, not taken from the list).
     pub fn for_each_labelled_point(&self, checked: &CheckedFrame<'_>, mut f: impl FnMut(&Point, Option<&Voxel>)) {
+        let listed = self.sampled_points().filter(|_| self.sampled_from == depth_buffer(&checked.frame));
         supervoxel::for_each_voxel_point(
             &checked.frame,
             &self.params,
             self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
-            self.sampled_points(),
+            listed,
             |p, v| f(p, v.map(|(_, v)| v)),
         );
     }
+}
+
+/// The identity of a frame's depth buffer: its address and length.
+fn depth_buffer(frame: &Frame<'_>) -> (usize, usize) {
+    (frame.depth.as_ptr() as usize, frame.depth.len())
 }
 
 /// Voxelisation's list of sampled points when it holds the whole frame (`complete`), else `None` (the passes
