@@ -173,12 +173,14 @@ impl<'f> Grid<'f> {
             return (p[2] != 0.0).then_some(*p);
         }
         let raw = self.depth.get(i).copied().unwrap_or(0);
-        if raw == 0 {
-            return None;
-        }
+        (raw > 0).then(|| self.centre_point(cx, cy, raw))
+    }
+
+    /// Cell (cx, cy)'s centre pixel back-projected at raw depth `raw`, camera frame (metres).
+    fn centre_point(&self, cx: usize, cy: usize, raw: u16) -> Vec3 {
         let (u, v) =
             ((cx * self.step) as f32 + 0.5 * self.step as f32, (cy * self.step) as f32 + 0.5 * self.step as f32);
-        (raw > 0).then(|| self.frame.intrinsics.unproject(u - 0.5, v - 0.5, self.frame.metres(raw)))
+        self.frame.intrinsics.unproject(u - 0.5, v - 0.5, self.frame.metres(raw))
     }
 
     /// [`Grid::point_at`] of cell index `i`.
@@ -293,9 +295,7 @@ fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
             let Some(raw) = reference_depth(frame, (lo, hi), (cx * grid.step, cy * grid.step), grid.step) else {
                 continue;
             };
-            let (u, v) =
-                ((cx * grid.step) as f32 + 0.5 * grid.step as f32, (cy * grid.step) as f32 + 0.5 * grid.step as f32);
-            let p = frame.intrinsics.unproject(u - 0.5, v - 0.5, frame.metres(raw));
+            let p = grid.centre_point(cx, cy, raw);
             let mut best: Option<(f32, u16)> = None;
             for (x, y) in four_neighbours(cx, cy) {
                 let Some((q, normal)) = grid.cached_surfel(x, y) else { continue };
