@@ -248,7 +248,8 @@ fn listing_points_and_linking_voxels_changes_no_map() {
         for k in 0..4 {
             let frame = scene.render(k, Some(3));
             let masks = masked.then(|| scene.perfect_masks(&frame, &mut LabelTable::default()));
-            let r = *mapper.process(frame.frame.view(&scene.camera), masks.as_ref().map(|m| m.view())).unwrap();
+            let view = frame.frame.view(&scene.camera);
+            let r = *mapper.process(view, masks.as_ref().map(|m| m.view())).unwrap();
             // A list or links that do not fit are no lost data: not in the frame's overflow events.
             let others: u32 = PoolId::ALL
                 .iter()
@@ -265,7 +266,11 @@ fn listing_points_and_linking_voxels_changes_no_map() {
             listed.push((complete && linked, cut));
             if !cut {
                 assert!(!complete || list.peak as u32 == r.points);
-                assert_eq!(mapper.sampled_points().is_some(), complete, "the list serves the frame's later users too");
+                assert_eq!(
+                    mapper.sampled_points(&view).is_some(),
+                    complete,
+                    "the list serves the frame's later users too"
+                );
             }
             let mut buf = vec![0u8; 1 << 20];
             let n = mapper.encode_map(&mut buf).unwrap();

@@ -326,7 +326,7 @@ fn mask_hits_from_voxels_are_the_pixel_counts() {
             let (mut fast, mut slow) = (vec![zero; 4096], vec![zero; 4096]);
             let args = (checked.frame(), mapper.voxels(), mapper.voxel_slots(), mapper.gaussians());
             // The fast count revisits the points from voxelisation's list, the pixel pass samples them again.
-            let listed = mapper.sampled_points();
+            let listed = mapper.sampled_points(checked.frame());
             assert!(listed.is_some(), "{name}: the host profile lists the sampled points");
             let a =
                 count_hits(args.0, &split, Some(&split), within, args.1, args.2, listed, args.3, &mut fast, &params);

@@ -176,7 +176,7 @@ pub struct Mapper<'s> {
     /// Whether `sampled` lists every sampled point of the current frame over its depth range.
     sampled_complete: bool,
     /// The depth buffer (address and length) `sampled` was listed from: the list, which keeps each point's
-    /// position, serves a caller's frame only when it is that one ([`Mapper::for_each_labelled_point`]).
+    /// position, serves a caller's frame only when it is that one ([`Mapper::sampled_points`]).
     sampled_from: (usize, usize),
     /// Each voxel's centroid and neighbours ([`supervoxel::VoxelLinks`]).
     links: &'s mut [supervoxel::VoxelLinks],
@@ -248,10 +248,11 @@ impl<'s> Mapper<'s> {
         self.slotted
     }
 
-    /// Voxelisation's list of the current frame's sampled points and their voxels, when it holds all of them
-    /// (for [`supervoxel::for_each_voxel_point`]).
-    pub fn sampled_points(&self) -> Option<&[supervoxel::SampledPoint]> {
-        listed(&self.sampled, self.sampled_complete)
+    /// Voxelisation's list of the current frame's sampled points, their positions and voxels, when it holds all
+    /// of them and `frame` is the frame it was listed from (the same depth buffer; for
+    /// [`supervoxel::for_each_voxel_point`], which takes the listed positions instead of `frame`'s).
+    pub fn sampled_points(&self, frame: &Frame<'_>) -> Option<&[supervoxel::SampledPoint]> {
+        listed(&self.sampled, self.sampled_complete).filter(|_| self.sampled_from == depth_buffer(frame))
     }
 
     /// Whether the last frame's voxels were split by id-image masks and every sampled point of a usable
@@ -1054,14 +1055,13 @@ impl<'s> Mapper<'s> {
     /// its supervoxel and Gaussian). `checked` must be the frame last processed for the labels to mean anything;
     /// the points themselves are `checked`'s (another frame's are sampled from it, not taken from the list).
     pub fn for_each_labelled_point(&self, checked: &CheckedFrame<'_>, mut f: impl FnMut(&Point, Option<&Voxel>)) {
-        let listed = self.sampled_points().filter(|_| self.sampled_from == depth_buffer(&checked.frame));
         supervoxel::for_each_voxel_point(
             &checked.frame,
             &self.params,
             self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
-            listed,
+            self.sampled_points(&checked.frame),
             |p, v| f(p, v.map(|(_, v)| v)),
         );
     }
