@@ -31,9 +31,16 @@
 //!    whose tangent plane its first valid pixel nearest the centre lies (or none, when that is a plane's or
 //!    background cell). Every pixel with a valid depth on its cell's surface takes the cell's instance.
 //!
-//! No per-cell pool: the union-find parents, the cells' depths, quantised normals and colours (with each plane
-//! cell's plane in the colour word's spare bits) live in the id image before the masks are written over them;
-//! the coplanar components' parents and then the component counts live in the scratch.
+//! Each cell's data is computed once and read by every later step: its point (back-projected as the block is
+//! averaged), its normal, and a link word that says which neighbours lie on its surface and how it
+//! meets its right and lower ones (coplanar, convex, one object's surface); the plane step, the LCCP joins, the
+//! plane–object boundaries, the plane growth and the mask fill read bits instead of recomputing the geometry.
+//!
+//! No per-cell pool: the union-find parents, the cells' quantised normals, colours (with each plane cell's plane
+//! in the colour word's spare bits), link words and points live in the id image before the masks are written
+//! over them (13 u16 per cell, and one to align the points; a grid of 4-pixel cells has 16 pixels' ids per cell:
+//! the grid is coarsened for an image without room for them); the coplanar components' parents and
+//! then the component counts live in the scratch.
 //!
 //! Measured against ground-truth ids (recall / precision at IoU ≥ 0.5) and the trade-offs tried: see
 //! docs/pipeline.md, "The geometric segmenter".
@@ -80,14 +87,12 @@ struct Grid<'f> {
     step: usize,
     cols: usize,
     rows: usize,
-    /// Each cell's depth (raw units, 0 = none): see [`Grid::fill`].
-    depth: &'f [u16],
+    /// Each cell's point (camera frame, metres; all 0 without one): see [`Grid::fill`].
+    points: &'f [Vec3],
     /// Each cell's unit normal × 32767 as three i16 bit patterns (all 0 = none), once computed.
     normals: &'f [u16],
-    /// Each cell's point (camera frame, metres; all 0 without one), once computed, for as many cells as it
-    /// holds: [`Grid::point_at`] reads it instead of back-projecting the cell again (each cell's point is wanted
-    /// about eight times).
-    points: &'f [Vec3],
+    /// Each cell's link word ([`link`]), once computed.
+    links: &'f [u16],
 }
 
 impl<'f> Grid<'f> {
@@ -102,57 +107,60 @@ impl<'f> Grid<'f> {
         (step, w.div_ceil(step), h.div_ceil(step))
     }
 
-    /// Writes each cell's depth into `depth` (raw units, 0 = none): the mean of the valid depths of its block
-    /// within the jump tolerance of its centre pixel's (a cell on a depth edge keeps the centre's surface; the
-    /// mean of 16 pixels has a quarter of their noise, so the normals are steady on 4-pixel cells).
+    /// Writes each cell's point into `points` (camera frame, metres; all 0 without one): its centre pixel
+    /// back-projected at the mean of the valid depths of its block within the jump tolerance of its centre
+    /// pixel's, which must be valid (a cell on a depth edge keeps the centre's surface; the mean of 16 pixels has
+    /// a quarter of their noise, so the normals are steady on 4-pixel cells); and its mean colour into `colours`
+    /// (r | g << 8, b).
+    #[inline(never)]
     fn fill(
         frame: &Frame<'_>,
         params: &Params,
         (step, cols, rows): (usize, usize, usize),
-        depth: &mut [u16],
+        points: &mut [Vec3],
         colours: &mut [u16],
     ) {
         let (w, h) = (frame.width as usize, frame.height as usize);
         let (lo, hi) = frame.raw_range(params);
-        for (i, (d, rgb)) in depth.iter_mut().zip(colours.chunks_exact_mut(2)).enumerate().take(cols * rows) {
-            let (cx, cy) = (i % cols.max(1), i / cols.max(1));
-            let (u0, v0) = (cx * step, cy * step);
-            let (uc, vc) = ((u0 + step / 2).min(w - 1), (v0 + step / 2).min(h - 1));
-            *d = 0;
-            let Some(centre) = frame.depth.get(vc * w + uc).copied().filter(|r| (lo..=hi).contains(r)) else {
-                continue;
-            };
-            let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
-            let (mut sum, mut n) = (0u32, 0u32);
-            let u1 = (u0 + step).min(w);
-            for v in v0..(v0 + step).min(h) {
-                for &r in frame.depth.get(v * w + u0..v * w + u1).unwrap_or(&[]) {
-                    let near = (r as u32).abs_diff(centre as u32) <= tolerance;
-                    if near && (lo..=hi).contains(&r) {
-                        sum += r as u32;
-                        n += 1;
+        let mut cells = points.iter_mut().zip(colours.chunks_exact_mut(2));
+        for cy in 0..rows {
+            let v0 = cy * step;
+            let (vc, v1) = ((v0 + step / 2).min(h - 1), (v0 + step).min(h));
+            for cx in 0..cols {
+                let Some((point, rgb)) = cells.next() else { return };
+                let u0 = cx * step;
+                let (uc, u1) = ((u0 + step / 2).min(w - 1), (u0 + step).min(w));
+                *point = [0.0; 3];
+                let Some(centre) = frame.depth.get(vc * w + uc).copied().filter(|r| (lo..=hi).contains(r)) else {
+                    continue;
+                };
+                let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
+                let near = near_interval((lo, hi), centre, tolerance);
+                let (mut sum, mut n) = (0u32, 0u32);
+                for v in v0..v1 {
+                    let row = frame.depth.get(v * w + u0..v * w + u1).unwrap_or(&[]);
+                    let (s, k) = match <&[u16; 4]>::try_from(row) {
+                        // The usual 4-pixel row, unrolled.
+                        Ok(four) => sum_near(four, near),
+                        Err(_) => sum_near(row, near),
+                    };
+                    sum += s;
+                    n += k;
+                }
+                // n ≥ 1 (the centre is valid), so the mean is in range.
+                *point = cell_point((step, cx, cy), frame, (sum / n.max(1)) as u16);
+                // The colour of the 2 × 2 pixels about the centre (a quarter of the sensor's colour noise).
+                let (x0, y0) = (uc.saturating_sub(1), vc.saturating_sub(1));
+                let mut colour = [0u32; 3];
+                for (x, y) in [(x0, y0), (uc, y0), (x0, vc), (uc, vc)] {
+                    if let Some(&[r, g, b]) = frame.colour.get(3 * (y * w + x)..3 * (y * w + x) + 3) {
+                        colour = [colour[0] + r as u32, colour[1] + g as u32, colour[2] + b as u32];
                     }
                 }
-            }
-            *d = (sum / n.max(1)) as u16;
-            // The colour of the 2 × 2 pixels about the centre (a quarter of the sensor's colour noise).
-            let mut colour = [0u32; 3];
-            for (x, y) in [
-                (uc.saturating_sub(1), vc.saturating_sub(1)),
-                (uc, vc.saturating_sub(1)),
-                (uc.saturating_sub(1), vc),
-                (uc, vc),
-            ] {
-                for (acc, &c) in
-                    colour.iter_mut().zip(frame.colour.get(3 * (y * w + x)..3 * (y * w + x) + 3).unwrap_or(&[]))
-                {
-                    *acc += c as u32;
+                if let [lo_half, hi_half] = rgb {
+                    *lo_half = (colour[0] / 4) as u16 | ((colour[1] / 4) as u16) << 8;
+                    *hi_half = (colour[2] / 4) as u16;
                 }
-            }
-            let [r, g, b] = colour.map(|c| (c / 4) as u16);
-            if let [lo_half, hi_half] = rgb {
-                *lo_half = r | (g << 8);
-                *hi_half = b;
             }
         }
     }
@@ -161,34 +169,25 @@ impl<'f> Grid<'f> {
         cy * self.cols + cx
     }
 
-    /// The point of cell (cx, cy), camera frame: its centre pixel back-projected at the cell's depth; `None`
-    /// without one.
+    /// The point of cell (cx, cy), camera frame; `None` without one.
+    #[inline]
     fn point_at(&self, cx: usize, cy: usize) -> Option<Vec3> {
         if cx >= self.cols || cy >= self.rows {
             return None;
         }
-        let i = cy * self.cols + cx;
-        if let Some(p) = self.points.get(i) {
-            // A cell with a point has z ≥ `depth_min` > 0.
-            return (p[2] != 0.0).then_some(*p);
-        }
-        let raw = self.depth.get(i).copied().unwrap_or(0);
-        (raw > 0).then(|| self.centre_point(cx, cy, raw))
+        self.point(cy * self.cols + cx)
     }
 
     /// Cell (cx, cy)'s centre pixel back-projected at raw depth `raw`, camera frame (metres).
     fn centre_point(&self, cx: usize, cy: usize, raw: u16) -> Vec3 {
-        let (u, v) =
-            ((cx * self.step) as f32 + 0.5 * self.step as f32, (cy * self.step) as f32 + 0.5 * self.step as f32);
-        self.frame.intrinsics.unproject(u - 0.5, v - 0.5, self.frame.metres(raw))
+        cell_point((self.step, cx, cy), self.frame, raw)
     }
 
     /// [`Grid::point_at`] of cell index `i`.
+    #[inline]
     fn point(&self, i: usize) -> Option<Vec3> {
-        if let Some(p) = self.points.get(i) {
-            return (p[2] != 0.0).then_some(*p);
-        }
-        self.point_at(i % self.cols.max(1), i / self.cols.max(1))
+        // A cell with a point has z ≥ `depth_min` > 0.
+        self.points.get(i).filter(|p| p[2] != 0.0).copied()
     }
 
     /// [`surface_jump`] on this grid.
@@ -211,35 +210,119 @@ impl<'f> Grid<'f> {
     fn cached_normal(&self, cx: usize, cy: usize, p: Vec3) -> Option<(Vec3, Vec3)> {
         let i = 3 * self.index(cx, cy);
         let &[a, b, c] = self.normals.get(i..i + 3)? else { return None };
-        let n = [a, b, c].map(|x| x as i16 as f32 / 32767.0);
+        const K: f32 = 1.0 / 32767.0;
+        let n = [a as i16 as f32 * K, b as i16 as f32 * K, c as i16 as f32 * K];
         (n != [0.0; 3]).then_some((p, n))
     }
 
     /// The point and unit normal (facing the camera) of cell (cx, cy): the normal from the neighbouring cells'
     /// points on either side along each axis (the cell's own point stands in for a neighbour that is missing or
-    /// across a depth jump).
-    fn surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
-        let p = self.point_at(cx, cy)?;
+    /// across a depth jump); with the cell's [`link::LEFT`]..[`link::DOWN`] bits (its neighbours on its surface).
+    fn surfel(&self, cx: usize, cy: usize) -> (u16, Option<(Vec3, Vec3)>) {
+        let Some(p) = self.point_at(cx, cy) else { return (0, None) };
         let jump = self.jump(p[2]);
-        let side = |dx: isize, dy: isize| -> Option<Vec3> {
-            let (x, y) = (cx as isize + dx, cy as isize + dy);
-            if x < 0 || y < 0 {
-                return None;
-            }
-            self.linked(x as usize, y as usize, p[2], jump)
-        };
-        let along = |dx: isize, dy: isize| -> Option<Vec3> {
-            match (side(dx, dy), side(-dx, -dy)) {
+        let left = if cx > 0 { self.linked(cx - 1, cy, p[2], jump) } else { None };
+        let up = if cy > 0 { self.linked(cx, cy - 1, p[2], jump) } else { None };
+        let (right, down) = (self.linked(cx + 1, cy, p[2], jump), self.linked(cx, cy + 1, p[2], jump));
+        let bits = [(left, link::LEFT), (right, link::RIGHT), (up, link::UP), (down, link::DOWN)]
+            .iter()
+            .fold(0, |b, (side, bit)| if side.is_some() { b | bit } else { b });
+        let along = |ahead: Option<Vec3>, behind: Option<Vec3>| -> Option<Vec3> {
+            match (ahead, behind) {
                 (Some(a), Some(b)) => Some(linalg::sub(a, b)),
                 (Some(a), None) => Some(linalg::sub(a, p)),
                 (None, Some(b)) => Some(linalg::sub(p, b)),
                 (None, None) => None,
             }
         };
-        let n = linalg::normalize_or(linalg::cross(along(1, 0)?, along(0, 1)?), [0.0; 3]);
+        let (Some(across), Some(downwards)) = (along(right, left), along(down, up)) else { return (bits, None) };
+        let n = linalg::normalize_or(linalg::cross(across, downwards), [0.0; 3]);
         let n = if linalg::dot(n, p) > 0.0 { linalg::scale(n, -1.0) } else { n };
-        (linalg::dot(n, n) > 0.5).then_some((p, n))
+        (bits, (linalg::dot(n, n) > 0.5).then_some((p, n)))
     }
+
+    /// Writes each cell's normal ([`Grid::surfel`], quantised to 1/32767; all 0 = none) into `normals` and its
+    /// [`link::LEFT`]..[`link::DOWN`] bits into `links`.
+    #[inline(never)]
+    fn surfels(&self, normals: &mut [u16], links: &mut [u16]) {
+        let mut cells = normals.chunks_exact_mut(3).zip(links.iter_mut());
+        for cy in 0..self.rows {
+            for cx in 0..self.cols {
+                let Some((q, bits)) = cells.next() else { return };
+                let (on_surface, surfel) = self.surfel(cx, cy);
+                *bits = on_surface;
+                for (x, c) in q.iter_mut().zip(surfel.map_or([0.0; 3], |(_, nrm)| nrm)) {
+                    *x = crate::supervoxel::quantise_unit(c) as u16;
+                }
+            }
+        }
+    }
+
+    /// Whether cell `i`'s `k`-th neighbour ([`four_neighbours`] order) lies on its surface (no depth jump at the
+    /// cell's depth); false before the links are computed.
+    fn on_surface(&self, i: usize, k: usize) -> bool {
+        self.links.get(i).is_some_and(|&b| b & (link::LEFT << k) != 0)
+    }
+}
+
+/// The bits of a cell's link word: which of its four neighbours lie on its surface (no depth jump at its depth),
+/// and, for the links to its right and lower neighbours when both cells have a normal, how their surfaces meet.
+/// Computed once per cell, read by every later step.
+mod link {
+    /// The left neighbour lies on the cell's surface (bit k is [`super::four_neighbours`]' k-th).
+    pub const LEFT: u16 = 1 << 0;
+    /// The right neighbour lies on the cell's surface.
+    pub const RIGHT: u16 = 1 << 1;
+    /// The upper neighbour lies on the cell's surface.
+    pub const UP: u16 = 1 << 2;
+    /// The lower neighbour lies on the cell's surface.
+    pub const DOWN: u16 = 1 << 3;
+    /// The right neighbour lies on the surface and both have a normal (shifted by [`DOWN_SHIFT`]: the lower one).
+    pub const NORMALS: u16 = 1 << 4;
+    /// ... and their normals are within [`super::PLANE_ANGLE_DEG`]: coplanar.
+    pub const COPLANAR: u16 = 1 << 5;
+    /// ... and their boundary is convex ((n_a − n_b)·d̂ ≥ [`super::CONVEX_MIN`]).
+    pub const CONVEX: u16 = 1 << 6;
+    /// ... and they are one object's surface: convex, or nearly flat and not a contact of two colours.
+    pub const JOINS: u16 = 1 << 7;
+    /// Shift of the lower link's bits over the right one's.
+    pub const DOWN_SHIFT: u16 = 4;
+}
+/// The centre pixel of cell (cx, cy) of a grid of `step`-pixel cells back-projected at raw depth `raw`, camera
+/// frame (metres).
+fn cell_point((step, cx, cy): (usize, usize, usize), frame: &Frame<'_>, raw: u16) -> Vec3 {
+    let (u, v) = ((cx * step) as f32 + 0.5 * step as f32, (cy * step) as f32 + 0.5 * step as f32);
+    frame.intrinsics.unproject(u - 0.5, v - 0.5, frame.metres(raw))
+}
+
+/// The raw depths `a..=b` that lie in the raw range (`lo..=hi`) within `tolerance` of `centre`: a pixel `r` is
+/// on the cell's surface when `r.wrapping_sub(a) <= b - a` (one comparison; empty, `a > b`, never matches).
+fn near_interval((lo, hi): (u16, u16), centre: u16, tolerance: u32) -> (u16, u16) {
+    let a = (centre as u32).saturating_sub(tolerance).max(lo as u32);
+    let b = (centre as u32 + tolerance).min(hi as u32);
+    if a > b {
+        (1, 0)
+    } else {
+        (a as u16, b as u16)
+    }
+}
+
+/// Whether raw depth `r` lies in `near` ([`near_interval`]).
+#[inline(always)]
+fn is_near(r: u16, (a, b): (u16, u16)) -> bool {
+    r.wrapping_sub(a) <= b.wrapping_sub(a)
+}
+
+/// The sum and count of the depths of `row` in `near` ([`near_interval`]), without a branch per pixel.
+#[inline(always)]
+fn sum_near(row: &[u16], near: (u16, u16)) -> (u32, u32) {
+    let (mut sum, mut n) = (0u32, 0u32);
+    for &r in row {
+        let ok = is_near(r, near);
+        sum += u32::from(ok) * r as u32;
+        n += u32::from(ok);
+    }
+    (sum, n)
 }
 
 /// The raw depth a cell of `step × step` pixels from (u0, v0) is measured against: its centre pixel's when it
@@ -330,6 +413,50 @@ const PLANE_GROW_SWEEPS: usize = 1;
 /// Most supporting planes one segmentation marks (their index takes the 7 bits below [`PLANE_FLAG`]).
 const MAX_PLANES: usize = 8;
 
+/// Completes each cell's link word (its [`link::LEFT`]..[`link::DOWN`] bits are set) with how its surface meets
+/// its right and lower neighbours' when both have a normal (`grid`'s normals are computed): coplanar, convex, one
+/// object's surface (the LCCP test of [`segment`]). `colours` are the cells' mean colours.
+fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u16]) {
+    let cos_plane = libm::cosf(PLANE_ANGLE_DEG.to_radians());
+    let cos_flat = libm::cosf(params.seg_concave_tolerance_deg.to_radians());
+    let colour_of = |i: usize| -> [i32; 3] {
+        match colours.get(2 * i..2 * i + 2) {
+            Some(&[rg, b]) => [(rg & 0xff) as i32, (rg >> 8) as i32, (b & 0xff) as i32],
+            _ => [0; 3],
+        }
+    };
+    let mut words = links.iter_mut();
+    for cy in 0..grid.rows {
+        for cx in 0..grid.cols {
+            let Some(word) = words.next() else { return };
+            let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
+            for (bx, by, on_surface, shift) in
+                [(cx + 1, cy, link::RIGHT, 0), (cx, cy + 1, link::DOWN, link::DOWN_SHIFT)]
+            {
+                if *word & on_surface == 0 {
+                    continue;
+                }
+                let Some((pb, nb)) = grid.cached_surfel(bx, by) else { continue };
+                let cos = linalg::dot(na, nb);
+                let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
+                let bend = linalg::dot(linalg::sub(na, nb), towards);
+                // A nearly flat boundary that bends inwards between cells of different colour is a contact (a
+                // ball on the floor, a can against a crate: the surfaces meet tangentially, so the concave
+                // crease is too faint for the normals), not one surface.
+                let contact = || {
+                    let (ca, cb) = (colour_of(grid.index(cx, cy)), colour_of(grid.index(bx, by)));
+                    bend < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
+                };
+                let mut bits = link::NORMALS;
+                bits |= if cos >= cos_plane { link::COPLANAR } else { 0 };
+                bits |= if bend >= CONVEX_MIN { link::CONVEX } else { 0 };
+                bits |= if bend >= CONVEX_MIN || (cos >= cos_flat && !contact()) { link::JOINS } else { 0 };
+                *word |= bits << shift;
+            }
+        }
+    }
+}
+
 /// Finds the supporting planes of `grid` and sets [`PLANE_FLAG`] in the colour word of each of their cells:
 /// neighbouring cells with no depth jump between them and normals within [`PLANE_ANGLE_DEG`] are joined (the
 /// union-find parents in `work`), and a component of at least `min_cells` cells that is flat (smallest σ at most
@@ -350,20 +477,11 @@ fn mark_planes(
     for (i, p) in parents.iter_mut().enumerate() {
         *p = i as u16;
     }
-    let cos_plane = libm::cosf(PLANE_ANGLE_DEG.to_radians());
-    for cy in 0..grid.rows {
-        for cx in 0..grid.cols {
-            let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
-            let jump = grid.jump(pa[2]);
-            for (bx, by) in [(cx + 1, cy), (cx, cy + 1)] {
-                let Some(q) = grid.linked(bx, by, pa[2], jump) else { continue };
-                let Some((_, nb)) = grid.cached_normal(bx, by, q) else { continue };
-                if linalg::dot(na, nb) >= cos_plane {
-                    union_find::union(parents, grid.index(cx, cy), grid.index(bx, by));
-                }
-            }
+    for_each_link(grid, |a, b, bits| {
+        if bits & link::COPLANAR != 0 {
+            union_find::union(parents, a, b);
         }
-    }
+    });
     flatten(parents);
     components(grid, parents, counts, min_cells, candidates);
     // The planes (candidate slot k + 1 → plane index, in each candidate's `instance`).
@@ -394,14 +512,11 @@ fn mark_planes(
     // the depth tolerance of the plane's least-squares fit with a normal within [`PLANE_GROW_DEG`] of it; a
     // raster sweep and a reverse sweep, [`PLANE_GROW_SWEEPS`] times.
     let cos_grow = libm::cosf(PLANE_GROW_DEG.to_radians());
-    let cols = grid.cols.max(1);
     for sweep in 0..2 * PLANE_GROW_SWEEPS {
-        for k in 0..n {
-            let i = if sweep % 2 == 0 { k } else { n - 1 - k };
+        for (i, cx, cy) in raster(grid, sweep % 2 == 1) {
             if colours.get(2 * i + 1).is_none_or(|&b| b & PLANE_FLAG != 0) {
                 continue;
             }
-            let (cx, cy) = (i % cols, i / cols);
             let neighbours = four_neighbours(cx, cy);
             let flagged = |&(x, y): &(usize, usize)| {
                 x < grid.cols
@@ -412,10 +527,9 @@ fn mark_planes(
                 continue;
             }
             let Some((p, normal)) = grid.cached_surfel(cx, cy) else { continue };
-            let jump = grid.jump(p[2]);
             let tolerance = params.depth_tolerance(p[2]);
-            let joined = neighbours.iter().find_map(|&(x, y)| {
-                grid.linked(x, y, p[2], jump)?;
+            let joined = neighbours.iter().enumerate().find_map(|(k, &(x, y))| {
+                grid.on_surface(i, k).then_some(())?;
                 let b = colours.get(2 * grid.index(x, y) + 1).copied().filter(|&b| b & PLANE_FLAG != 0)?;
                 let plane = (b & !PLANE_FLAG) >> PLANE_SHIFT;
                 let (centre, axis) = planes.get(plane as usize)?;
@@ -430,6 +544,61 @@ fn mark_planes(
         }
     }
     (marked, largest.map(|(_, up)| up))
+}
+
+/// Calls `f(a, b, bits)` for every cell `a` and its right and then its lower neighbour `b` when both have a normal
+/// and no depth jump separates them, in raster order; `bits` are the link's [`link`] bits (at the right link's
+/// place).
+fn for_each_link(grid: &Grid<'_>, mut f: impl FnMut(usize, usize, u16)) {
+    for (a, &word) in grid.links.iter().enumerate() {
+        for (b, shift) in [(a + 1, 0), (a + grid.cols, link::DOWN_SHIFT)] {
+            let bits = word >> shift;
+            if bits & link::NORMALS != 0 {
+                f(a, b, bits);
+            }
+        }
+    }
+}
+
+/// The cells of `grid` as (index, column, row) in raster order, or in its reverse.
+fn raster(grid: &Grid<'_>, reverse: bool) -> Raster {
+    let n = grid.cols * grid.rows;
+    let (cx, cy) = if reverse { (grid.cols.saturating_sub(1), grid.rows.saturating_sub(1)) } else { (0, 0) };
+    Raster { cols: grid.cols, left: n, i: if reverse { n.saturating_sub(1) } else { 0 }, cx, cy, reverse }
+}
+
+/// The iterator of [`raster`] (no division per cell).
+struct Raster {
+    cols: usize,
+    left: usize,
+    i: usize,
+    cx: usize,
+    cy: usize,
+    reverse: bool,
+}
+
+impl Iterator for Raster {
+    type Item = (usize, usize, usize);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.left = self.left.checked_sub(1)?;
+        let item = (self.i, self.cx, self.cy);
+        if self.reverse {
+            self.i = self.i.saturating_sub(1);
+            if self.cx == 0 {
+                (self.cx, self.cy) = (self.cols.saturating_sub(1), self.cy.saturating_sub(1));
+            } else {
+                self.cx -= 1;
+            }
+        } else {
+            self.i += 1;
+            self.cx += 1;
+            if self.cx == self.cols {
+                (self.cx, self.cy) = (0, self.cy + 1);
+            }
+        }
+        Some(item)
+    }
 }
 
 /// The left, right, upper and lower neighbours of cell (cx, cy); one beyond the grid has a coordinate past its
@@ -702,6 +871,78 @@ pub fn digest(ids: &[u16], instances: &[Instance]) -> u32 {
     !crc
 }
 
+/// Writes the masks over the id image `ids`, whose first `cols × rows` entries hold each cell's instance (0:
+/// none): every pixel with a valid depth on its cell's surface — within the jump tolerance of the cell's centre
+/// pixel (of its reference pixel, [`reference_depth`], for a holed cell that took an instance) — takes the cell's
+/// instance, every other pixel 0; each instance's box grows over its pixels. Pixels are written from the last:
+/// pixel i's cell index is at most i, so no cell is overwritten before its pixels are done.
+#[inline(never)]
+fn write_masks(
+    frame: &Frame<'_>,
+    params: &Params,
+    (step, cols, rows): (usize, usize, usize),
+    ids: &mut [u16],
+    instances: &mut [Instance],
+) {
+    let (lo, hi) = frame.raw_range(params);
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    // Cell by cell from the last, each block's rows from the last: a pixel of cell c has an index ≥ c (the
+    // block starts at row cy·step ≥ cy, column cx·step ≥ cx), and every cell still to come is below c.
+    for cy in (0..rows).rev() {
+        let (v0, v1) = (cy * step, ((cy + 1) * step).min(h));
+        let vc = (v0 + step / 2).min(h - 1);
+        for cx in (0..cols).rev() {
+            let instance = ids.get(cy * cols + cx).copied().unwrap_or(0);
+            let (u0, u1) = (cx * step, ((cx + 1) * step).min(w));
+            if instance == 0 {
+                for v in v0..v1 {
+                    ids.get_mut(v * w + u0..v * w + u1).unwrap_or(&mut []).fill(0);
+                }
+                continue;
+            }
+            // The pixel must lie on its cell's surface: within the jump tolerance of the cell's centre pixel.
+            let uc = (cx * step + step / 2).min(w - 1);
+            let centre = frame.depth.get(vc * w + uc).copied().unwrap_or(0);
+            // A cell whose centre pixel has no depth is measured against its reference pixel (it took an
+            // instance in [`adopt_holed_cells`]).
+            let centre = if (lo..=hi).contains(&centre) {
+                centre
+            } else {
+                reference_depth(frame, (lo, hi), (cx * step, v0), step).unwrap_or(0)
+            };
+            // Without a reference, no pixel takes the instance (an empty interval).
+            let near = if (lo..=hi).contains(&centre) {
+                let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
+                near_interval((lo, hi), centre, tolerance)
+            } else {
+                (1, 0)
+            };
+            for v in (v0..v1).rev() {
+                let (depth, row) = match (frame.depth.get(v * w + u0..v * w + u1), ids.get_mut(v * w + u0..v * w + u1))
+                {
+                    (Some(d), Some(r)) => (d, r),
+                    _ => continue,
+                };
+                let mut hit = false;
+                for (x, &raw) in row.iter_mut().zip(depth) {
+                    let on_surface = is_near(raw, near);
+                    *x = if on_surface { instance } else { 0 };
+                    hit |= on_surface;
+                }
+                // The instance's box over this row's pixels that took it.
+                if hit {
+                    if let Some(inst) = instances.get_mut(instance as usize - 1) {
+                        let first = row.iter().position(|&x| x == instance).unwrap_or(0) + u0;
+                        let last = row.iter().rposition(|&x| x == instance).unwrap_or(0) + u0;
+                        let b = &mut inst.bbox;
+                        *b = [b[0].min(first as u16), b[1].min(v as u16), b[2].max(last as u16), b[3].max(v as u16)];
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Counts of one segmentation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SegmentStats {
@@ -735,31 +976,24 @@ pub fn segment(
     // A grid of cells over the depth image (an organized cloud: neighbours are known without a search, and the
     // cells are as fine at 0.5 m as at 4 m). `ids` holds the parents (n), the cells' depths (n), their quantised
     // normals (3n) and mean colours (2n) until the masks.
-    let layout = Grid::layout(frame, scratch.len().min(ids.len() / 7));
+    let layout = Grid::layout(frame, scratch.len().min(ids.len().saturating_sub(1) / 13));
     let n = layout.1 * layout.2;
     let (parents, rest) = ids.split_at_mut(n.min(ids.len()));
-    let (depth, rest) = rest.split_at_mut(n.min(rest.len()));
     let (normals, rest) = rest.split_at_mut((3 * n).min(rest.len()));
     let (colours, rest) = rest.split_at_mut((2 * n).min(rest.len()));
-    // The points' cache in the rest of the id image (13 u16 per cell in all; a grid of 4-pixel cells has 16
-    // pixels' ids per cell), for as many cells as it has room for (the rest, e.g. of an id image not aligned for
-    // f32, are back-projected where they are wanted).
+    let (links, rest) = rest.split_at_mut(n.min(rest.len()));
+    // The cells' points in the rest of the id image (6 u16 per cell, after at most one to align them for f32:
+    // 13 u16 per cell in all, and a grid of 4-pixel cells has 16 pixels' ids per cell). The layout leaves room
+    // for every cell; one that found none would have no point.
     let (_, points, _) = bytemuck::pod_align_to_mut::<u16, Vec3>(rest);
-    let cached = points.len().min(n);
-    let points = points.get_mut(..cached).unwrap_or(&mut []);
-    Grid::fill(frame, params, layout, depth, colours);
-    let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, depth, normals: &[], points: &[] };
-    for (i, q) in points.iter_mut().enumerate() {
-        *q = grid.point(i).unwrap_or([0.0; 3]);
-    }
-    let grid = Grid { points, ..grid };
-    for (i, q) in normals.chunks_exact_mut(3).enumerate() {
-        let normal = grid.surfel(i % grid.cols.max(1), i / grid.cols.max(1)).map_or([0.0; 3], |(_, nrm)| nrm);
-        for (x, c) in q.iter_mut().zip(normal) {
-            *x = crate::supervoxel::quantise_unit(c) as u16;
-        }
-    }
+    let room = points.len().min(n);
+    let points = points.get_mut(..room).unwrap_or(&mut []);
+    Grid::fill(frame, params, layout, points, colours);
+    let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, points, normals: &[], links: &[] };
+    grid.surfels(normals, links);
     let grid = Grid { normals, ..grid };
+    link_cells(&grid, colours, params, links);
+    let grid = Grid { links, ..grid };
     // 1. Supporting planes ([`mark_planes`]): their cells are marked in their colour word.
     let min_cells =
         (params.seg_min_points as f32 / params.sample_rate.max(1e-3) / (grid.step * grid.step) as f32) as u32;
@@ -768,50 +1002,15 @@ pub fn segment(
     let (planes, up) = mark_planes(&grid, scratch, parents, colours, min_cells, params, &mut candidates);
     stats.plane_cells = planes;
     let colours = &*colours;
-    let colour_of = |i: usize| -> [i32; 3] {
-        match colours.get(2 * i..2 * i + 2) {
-            Some(&[rg, b]) => [(rg & 0xff) as i32, (rg >> 8) as i32, (b & 0xff) as i32],
-            _ => [0; 3],
-        }
-    };
     let on_plane = |i: usize| colours.get(2 * i + 1).is_some_and(|&b| b & PLANE_FLAG != 0);
     // 2. Objects: neighbouring cells join when no depth jump separates them and their boundary is locally
     // convex or nearly flat (LCCP).
-    let cos_flat = libm::cosf(params.seg_concave_tolerance_deg.to_radians());
     for (i, p) in parents.iter_mut().enumerate() {
         *p = i as u16;
     }
-    // Every link between neighbouring cells on one surface (no depth jump) that `boundary` selects (links
-    // across a plane's boundary, or the others): f(a, b, bend (n_a − n_b)·d̂, n_a·n_b).
-    let for_each_link = |boundary: bool, f: &mut dyn FnMut(usize, usize, f32, f32)| {
-        for cy in 0..grid.rows {
-            for cx in 0..grid.cols {
-                let ia = grid.index(cx, cy);
-                let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
-                let jump = grid.jump(pa[2]);
-                for (bx, by) in [(cx + 1, cy), (cx, cy + 1)] {
-                    let ib = grid.index(bx, by);
-                    if bx >= grid.cols || (on_plane(ia) != on_plane(ib)) != boundary {
-                        continue;
-                    }
-                    let Some(q) = grid.linked(bx, by, pa[2], jump) else { continue };
-                    let Some((pb, nb)) = grid.cached_normal(bx, by, q) else { continue };
-                    let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
-                    f(ia, ib, linalg::dot(linalg::sub(na, nb), towards), linalg::dot(na, nb));
-                }
-            }
-        }
-    };
     // A plane's cells join only each other here (see below for an object's face).
-    for_each_link(false, &mut |ia, ib, bend, cos| {
-        // A nearly flat boundary that bends inwards between cells of different colour is a contact (a ball on
-        // the floor, a can against a crate: the surfaces meet tangentially, so the concave crease is too faint
-        // for the normals), not one surface.
-        let contact = || {
-            let (ca, cb) = (colour_of(ia), colour_of(ib));
-            bend < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
-        };
-        if bend >= CONVEX_MIN || (cos >= cos_flat && !contact()) {
+    for_each_link(&grid, |ia, ib, bits| {
+        if on_plane(ia) == on_plane(ib) && bits & link::JOINS != 0 {
             union_find::union(parents, ia, ib);
         }
     });
@@ -819,7 +1018,10 @@ pub fn segment(
     // cabinet's front), not a support: it joins it. An object resting on a plane meets it along a concave crease
     // (a few links may read convex there: the majority decides, as in LCCP's segment-level convexity).
     let mut boundaries: heapless::Vec<Boundary, MAX_BOUNDARIES> = heapless::Vec::new();
-    for_each_link(true, &mut |ia, ib, bend, _| {
+    for_each_link(&grid, |ia, ib, bits| {
+        if on_plane(ia) == on_plane(ib) {
+            return;
+        }
         let (plane, other) = if on_plane(ia) { (ia, ib) } else { (ib, ia) };
         let key = (union_find::find(parents, plane) as u16, union_find::find(parents, other) as u16);
         let at = match boundaries.iter().position(|b| (b.plane, b.other) == key) {
@@ -835,7 +1037,7 @@ pub fn segment(
         };
         if let Some(b) = boundaries.get_mut(at) {
             b.links = b.links.saturating_add(1);
-            b.convex = b.convex.saturating_add(u16::from(bend >= CONVEX_MIN));
+            b.convex = b.convex.saturating_add(u16::from(bits & link::CONVEX != 0));
         }
     });
     for b in &boundaries {
@@ -887,21 +1089,16 @@ pub fn segment(
     // [`FILL_MIN_NEIGHBOURS`] of its four name it and none another (a hole in an object's mask would leave its
     // points to the Gaussians of what it rests on); a raster sweep and a reverse sweep, [`FILL_SWEEPS`] times;
     // what is left is no instance.
-    let cols = grid.cols.max(1);
     for sweep in 0..2 * FILL_SWEEPS {
-        for k in 0..n {
-            let i = if sweep % 2 == 0 { k } else { n - 1 - k };
+        for (i, cx, cy) in raster(&grid, sweep % 2 == 1) {
             if parents.get(i) != Some(&FILL) {
                 continue;
             }
-            let (cx, cy) = (i % cols, i / cols);
-            let Some(p) = grid.point(i) else { continue };
-            let jump = grid.jump(p[2]);
             let mut named: Option<u16> = None;
             let mut unique = true;
             let mut naming = 0;
-            for (x, y) in four_neighbours(cx, cy) {
-                if grid.linked(x, y, p[2], jump).is_none() {
+            for (k, (x, y)) in four_neighbours(cx, cy).into_iter().enumerate() {
+                if !grid.on_surface(i, k) {
                     continue;
                 }
                 let Some(&id) = parents.get(grid.index(x, y)).filter(|&&id| id != 0 && id != FILL) else { continue };
@@ -918,61 +1115,8 @@ pub fn segment(
         *x = 0;
     }
     stats.holed_cells_adopted = adopt_holed_cells(&grid, parents);
-    // 3. Masks: every pixel with a valid depth near its cell's takes the cell's instance. Pixels are written
-    // from the last: pixel i's cell index is at most i, so no cell is overwritten before its pixels are done.
-    let (lo, hi) = frame.raw_range(params);
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    let (step, cols) = (layout.0, layout.1);
-    // Cell by cell from the last, each block's rows from the last: a pixel of cell c has an index ≥ c (the
-    // block starts at row cy·step ≥ cy, column cx·step ≥ cx), and every cell still to come is below c.
-    let rows = layout.2;
-    for cy in (0..rows).rev() {
-        let (v0, v1) = (cy * step, ((cy + 1) * step).min(h));
-        let vc = (v0 + step / 2).min(h - 1);
-        for cx in (0..cols).rev() {
-            let instance = ids.get(cy * cols + cx).copied().unwrap_or(0);
-            // The pixel must lie on its cell's surface: within the jump tolerance of the cell's centre pixel.
-            let uc = (cx * step + step / 2).min(w - 1);
-            let centre = frame.depth.get(vc * w + uc).copied().unwrap_or(0);
-            // A cell whose centre pixel has no depth is measured against its reference pixel when it took an
-            // instance ([`adopt_holed_cells`]).
-            let centre = if (lo..=hi).contains(&centre) || instance == 0 {
-                centre
-            } else {
-                reference_depth(frame, (lo, hi), (cx * step, v0), step).unwrap_or(0)
-            };
-            let tolerance = if (lo..=hi).contains(&centre) {
-                Some((surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32)
-            } else {
-                None
-            };
-            let (u0, u1) = (cx * step, ((cx + 1) * step).min(w));
-            for v in (v0..v1).rev() {
-                let mut hit = false;
-                for u in (u0..u1).rev() {
-                    let i = v * w + u;
-                    let raw = frame.depth.get(i).copied().unwrap_or(0);
-                    let near = (lo..=hi).contains(&raw)
-                        && tolerance.is_some_and(|t| (raw as u32).abs_diff(centre as u32) <= t);
-                    let id = if near { instance } else { 0 };
-                    if let Some(x) = ids.get_mut(i) {
-                        *x = id;
-                    }
-                    hit |= id != 0;
-                }
-                // The instance's box over this row's pixels that took it.
-                if hit {
-                    if let Some(inst) = instance.checked_sub(1).and_then(|k| instances.get_mut(k as usize)) {
-                        let row = ids.get(v * w + u0..v * w + u1).unwrap_or(&[]);
-                        let first = row.iter().position(|&x| x == instance).unwrap_or(0) + u0;
-                        let last = row.iter().rposition(|&x| x == instance).unwrap_or(0) + u0;
-                        let b = &mut inst.bbox;
-                        *b = [b[0].min(first as u16), b[1].min(v as u16), b[2].max(last as u16), b[3].max(v as u16)];
-                    }
-                }
-            }
-        }
-    }
+    // 3. Masks: every pixel with a valid depth near its cell's takes the cell's instance.
+    write_masks(frame, params, layout, ids, instances);
     // An instance whose cells received no pixel keeps an empty box: drop it by giving it a one-pixel box at 0
     // with no pixels (still valid, never matched).
     for inst in instances.iter_mut().take(written) {
