@@ -1018,13 +1018,17 @@ pub fn segment(
     // cabinet's front), not a support: it joins it. An object resting on a plane meets it along a concave crease
     // (a few links may read convex there: the majority decides, as in LCCP's segment-level convexity).
     let mut boundaries: heapless::Vec<Boundary, MAX_BOUNDARIES> = heapless::Vec::new();
+    let mut last_boundary: Option<usize> = None;
     for_each_link(&grid, |ia, ib, bits| {
         if on_plane(ia) == on_plane(ib) {
             return;
         }
         let (plane, other) = if on_plane(ia) { (ia, ib) } else { (ib, ia) };
         let key = (union_find::find(parents, plane) as u16, union_find::find(parents, other) as u16);
-        let at = match boundaries.iter().position(|b| (b.plane, b.other) == key) {
+        // Neighbouring links mostly cross the same boundary: the last one found is tried first.
+        let same = |k: &usize| boundaries.get(*k).is_some_and(|b| (b.plane, b.other) == key);
+        let at = match last_boundary.filter(same).or_else(|| boundaries.iter().position(|b| (b.plane, b.other) == key))
+        {
             Some(k) => k,
             None => {
                 let fresh = Boundary { plane: key.0, other: key.1, convex: 0, links: 0 };
@@ -1035,6 +1039,7 @@ pub fn segment(
                 boundaries.len() - 1
             }
         };
+        last_boundary = Some(at);
         if let Some(b) = boundaries.get_mut(at) {
             b.links = b.links.saturating_add(1);
             b.convex = b.convex.saturating_add(u16::from(bits & link::CONVEX != 0));
