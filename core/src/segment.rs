@@ -295,27 +295,31 @@ fn cell_point((step, cx, cy): (usize, usize, usize), frame: &Frame<'_>, raw: u16
     frame.intrinsics.unproject(u - 0.5, v - 0.5, frame.metres(raw))
 }
 
-/// The raw depths `a..=b` that lie in the raw range (`lo..=hi`) within `tolerance` of `centre`: a pixel `r` is
-/// on the cell's surface when `r.wrapping_sub(a) <= b - a` (one comparison; empty, `a > b`, never matches).
-fn near_interval((lo, hi): (u16, u16), centre: u16, tolerance: u32) -> (u16, u16) {
+/// The raw depths that lie in the raw range (`lo..=hi`) within `tolerance` of `centre`, as the first and the
+/// span (`a..=a + span`; span −1 when there are none): a pixel `r` is on the cell's surface when
+/// `r.wrapping_sub(a) <= span` ([`is_near`], one comparison).
+fn near_interval((lo, hi): (u16, u16), centre: u16, tolerance: u32) -> (u16, i32) {
     let a = (centre as u32).saturating_sub(tolerance).max(lo as u32);
-    let b = (centre as u32 + tolerance).min(hi as u32);
+    let b = (centre as u32).saturating_add(tolerance).min(hi as u32);
     if a > b {
-        (1, 0)
+        NOWHERE
     } else {
-        (a as u16, b as u16)
+        (a as u16, (b - a) as i32)
     }
 }
 
+/// The [`near_interval`] that holds no depth.
+const NOWHERE: (u16, i32) = (0, -1);
+
 /// Whether raw depth `r` lies in `near` ([`near_interval`]).
 #[inline(always)]
-fn is_near(r: u16, (a, b): (u16, u16)) -> bool {
-    r.wrapping_sub(a) <= b.wrapping_sub(a)
+fn is_near(r: u16, (a, span): (u16, i32)) -> bool {
+    i32::from(r.wrapping_sub(a)) <= span
 }
 
 /// The sum and count of the depths of `row` in `near` ([`near_interval`]), without a branch per pixel.
 #[inline(always)]
-fn sum_near(row: &[u16], near: (u16, u16)) -> (u32, u32) {
+fn sum_near(row: &[u16], near: (u16, i32)) -> (u32, u32) {
     let (mut sum, mut n) = (0u32, 0u32);
     for &r in row {
         let ok = is_near(r, near);
@@ -513,7 +517,7 @@ fn mark_planes(
     // raster sweep and a reverse sweep, [`PLANE_GROW_SWEEPS`] times.
     let cos_grow = libm::cosf(PLANE_GROW_DEG.to_radians());
     for sweep in 0..2 * PLANE_GROW_SWEEPS {
-        for (i, cx, cy) in raster(grid, sweep % 2 == 1) {
+        for (i, cx, cy) in raster(grid.cols, grid.rows, sweep % 2 == 1) {
             if colours.get(2 * i + 1).is_none_or(|&b| b & PLANE_FLAG != 0) {
                 continue;
             }
@@ -560,11 +564,11 @@ fn for_each_link(grid: &Grid<'_>, mut f: impl FnMut(usize, usize, u16)) {
     }
 }
 
-/// The cells of `grid` as (index, column, row) in raster order, or in its reverse.
-fn raster(grid: &Grid<'_>, reverse: bool) -> Raster {
-    let n = grid.cols * grid.rows;
-    let (cx, cy) = if reverse { (grid.cols.saturating_sub(1), grid.rows.saturating_sub(1)) } else { (0, 0) };
-    Raster { cols: grid.cols, left: n, i: if reverse { n.saturating_sub(1) } else { 0 }, cx, cy, reverse }
+/// The cells of a `cols × rows` grid as (index, column, row) in raster order, or in its reverse.
+fn raster(cols: usize, rows: usize, reverse: bool) -> Raster {
+    let n = cols * rows;
+    let (cx, cy) = if reverse { (cols.saturating_sub(1), rows.saturating_sub(1)) } else { (0, 0) };
+    Raster { cols, left: n, i: if reverse { n.saturating_sub(1) } else { 0 }, cx, cy, reverse }
 }
 
 /// The iterator of [`raster`] (no division per cell).
@@ -910,12 +914,12 @@ fn write_masks(
             } else {
                 reference_depth(frame, (lo, hi), (cx * step, v0), step).unwrap_or(0)
             };
-            // Without a reference, no pixel takes the instance (an empty interval).
+            // Without a reference, no pixel takes the instance.
             let near = if (lo..=hi).contains(&centre) {
                 let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
                 near_interval((lo, hi), centre, tolerance)
             } else {
-                (1, 0)
+                NOWHERE
             };
             for v in (v0..v1).rev() {
                 let (depth, row) = match (frame.depth.get(v * w + u0..v * w + u1), ids.get_mut(v * w + u0..v * w + u1))
@@ -1095,7 +1099,7 @@ pub fn segment(
     // points to the Gaussians of what it rests on); a raster sweep and a reverse sweep, [`FILL_SWEEPS`] times;
     // what is left is no instance.
     for sweep in 0..2 * FILL_SWEEPS {
-        for (i, cx, cy) in raster(&grid, sweep % 2 == 1) {
+        for (i, cx, cy) in raster(grid.cols, grid.rows, sweep % 2 == 1) {
             if parents.get(i) != Some(&FILL) {
                 continue;
             }
@@ -1131,4 +1135,49 @@ pub fn segment(
     }
     stats.instances = written as u32;
     stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn raster_visits_every_cell_once_in_order_and_in_reverse() {
+        for (cols, rows) in [(0, 0), (0, 3), (3, 0), (1, 1), (1, 4), (4, 1), (5, 3), (160, 120)] {
+            let n = cols * rows;
+            let cell = |i: usize| (i, i % cols, i / cols);
+            assert_eq!(raster(cols, rows, false).count(), n, "{cols} × {rows}");
+            assert_eq!(raster(cols, rows, true).count(), n, "{cols} × {rows} reversed");
+            for (k, item) in raster(cols, rows, false).enumerate() {
+                assert_eq!(item, cell(k), "{cols} × {rows}, step {k}");
+            }
+            for (k, item) in raster(cols, rows, true).enumerate() {
+                assert_eq!(item, cell(n - 1 - k), "{cols} × {rows} reversed, step {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_near_interval_is_the_range_and_tolerance_test() {
+        let cases = [
+            ((1, 40_000), 20_000, 150),
+            ((1, 40_000), 100, 500),       // the interval starts at the range's low end
+            ((1, 40_000), 39_900, 500),    // and ends at its high end
+            ((2_000, 3_000), 2_500, 0),    // a zero tolerance: the centre alone
+            ((1, 65_535), 65_535, 70_000), // a tolerance past every value
+            ((500, 600), 550, u32::MAX),
+            ((2_000, 3_000), 5_000, 100), // a centre out of range: nothing is near
+        ];
+        for ((lo, hi), centre, tolerance) in cases {
+            let near = near_interval((lo, hi), centre, tolerance);
+            for r in 0..=u16::MAX {
+                let expected = (lo..=hi).contains(&r) && (r as u32).abs_diff(centre as u32) <= tolerance;
+                assert_eq!(is_near(r, near), expected, "r {r}, range {lo}..={hi}, centre {centre} ± {tolerance}");
+            }
+            let (sum, n) = sum_near(&[centre, lo.saturating_sub(1), hi], near);
+            let counted = |r: u16| u32::from((lo..=hi).contains(&r) && (r as u32).abs_diff(centre as u32) <= tolerance);
+            assert_eq!(n, counted(centre) + counted(hi));
+            assert_eq!(sum, counted(centre) * centre as u32 + counted(hi) * hi as u32);
+        }
+    }
 }
