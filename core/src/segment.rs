@@ -431,16 +431,19 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
     };
     let mut words = links.iter_mut();
     for cy in 0..grid.rows {
+        // Each cell's surfel, read once as the right neighbour and kept for its own turn.
+        let mut here = grid.cached_surfel(0, cy);
         for cx in 0..grid.cols {
             let Some(word) = words.next() else { return };
-            let Some((pa, na)) = grid.cached_surfel(cx, cy) else { continue };
+            let right = grid.cached_surfel(cx + 1, cy);
+            let Some((pa, na)) = core::mem::replace(&mut here, right) else { continue };
             for (bx, by, on_surface, shift) in
                 [(cx + 1, cy, link::RIGHT, 0), (cx, cy + 1, link::DOWN, link::DOWN_SHIFT)]
             {
                 if *word & on_surface == 0 {
                     continue;
                 }
-                let Some((pb, nb)) = grid.cached_surfel(bx, by) else { continue };
+                let Some((pb, nb)) = (if shift == 0 { right } else { grid.cached_surfel(bx, by) }) else { continue };
                 let cos = linalg::dot(na, nb);
                 let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
                 let bend = linalg::dot(linalg::sub(na, nb), towards);
