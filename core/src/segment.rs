@@ -898,15 +898,24 @@ fn write_masks(
     for cy in (0..rows).rev() {
         let (v0, v1) = (cy * step, ((cy + 1) * step).min(h));
         let vc = (v0 + step / 2).min(h - 1);
+        // The pixels of a run of cells without an instance are zeroed together, row by row, once the run ends
+        // (its end: one past its last pixel column); its cells have been read by then.
+        let mut zeros_end: Option<usize> = None;
+        let zero = |ids: &mut [u16], from: usize, end: Option<usize>| {
+            for v in v0..v1 {
+                if let Some(row) = end.and_then(|end| ids.get_mut(v * w + from..v * w + end)) {
+                    row.fill(0);
+                }
+            }
+        };
         for cx in (0..cols).rev() {
             let instance = ids.get(cy * cols + cx).copied().unwrap_or(0);
             let (u0, u1) = (cx * step, ((cx + 1) * step).min(w));
             if instance == 0 {
-                for v in v0..v1 {
-                    ids.get_mut(v * w + u0..v * w + u1).unwrap_or(&mut []).fill(0);
-                }
+                zeros_end.get_or_insert(u1);
                 continue;
             }
+            zero(ids, u1, zeros_end.take());
             // The pixel must lie on its cell's surface: within the jump tolerance of the cell's centre pixel.
             let uc = (cx * step + step / 2).min(w - 1);
             let centre = frame.depth.get(vc * w + uc).copied().unwrap_or(0);
@@ -947,6 +956,7 @@ fn write_masks(
                 }
             }
         }
+        zero(ids, 0, zeros_end);
     }
 }
 
