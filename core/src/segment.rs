@@ -524,13 +524,12 @@ fn mark_planes(
             if colours.get(2 * i + 1).is_none_or(|&b| b & PLANE_FLAG != 0) {
                 continue;
             }
+            // Only a neighbour on the cell's surface can take it in: a plane's cell among those, or nothing to do.
             let neighbours = four_neighbours(cx, cy);
-            let flagged = |&(x, y): &(usize, usize)| {
-                x < grid.cols
-                    && y < grid.rows
-                    && colours.get(2 * grid.index(x, y) + 1).is_some_and(|&b| b & PLANE_FLAG != 0)
+            let flagged = |k: usize, &(x, y): &(usize, usize)| {
+                grid.on_surface(i, k) && colours.get(2 * grid.index(x, y) + 1).is_some_and(|&b| b & PLANE_FLAG != 0)
             };
-            if !neighbours.iter().any(flagged) {
+            if !neighbours.iter().enumerate().any(|(k, xy)| flagged(k, xy)) {
                 continue;
             }
             let Some((p, normal)) = grid.cached_surfel(cx, cy) else { continue };
