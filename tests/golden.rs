@@ -20,6 +20,11 @@
 //!   `tum_fr3_cabinet` frames 5 and 10 (its masks and poses as `m2smap run` maps them; skipped when
 //!   ../shared/data is absent). Host profile, default parameters.
 //!
+//! - the geometric segmenter (`segmenter_<set>.txt`, one line per frame): the CRC-32 of its id image and
+//!   instances ([`m2smap_core::segment::digest`]) and the instance count, on synthetic frames (always run) and on
+//!   real frames of cabinet, ycbv_0000 and redkitchen (skipped when ../shared/data is absent): a change meant to
+//!   make it faster must leave every mask bit as it was.
+//!
 //! A one-bit change of the map or snapshot bytes always changes its FNV-1a digest (each step of FNV-1a is a
 //! bijection of the 64-bit state, so two inputs of equal length that differ in one byte never collide);
 //! `a_one_bit_change_of_the_map_bytes_fails_the_comparison` checks it for every bit of a real map.
@@ -33,7 +38,8 @@ use m2smap::masks::{mask_dir, LabelTable};
 use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
 use m2smap::synth::Scene;
 use m2smap_core::map::Primitive;
-use m2smap_core::{wire, Gaussian, HostStorage, Mapper, McuStorage, Params};
+use m2smap_core::segment::{digest, SEGMENTER_INSTANCES};
+use m2smap_core::{wire, Frame, Gaussian, HostStorage, Instance, Mapper, McuStorage, Params};
 
 /// FNV-1a (64 bit) over bytes.
 fn fnv1a64(bytes: impl IntoIterator<Item = u8>) -> u64 {
@@ -324,4 +330,71 @@ fn a_one_bit_change_of_the_map_bytes_fails_the_comparison() {
     let err = compare("tabletop", 0, Some(&blessed), &pinned.line("tabletop", 0)).unwrap_err();
     let n = pinned.kinds[2].0;
     assert!(err.contains(&format!("gmms {} ", n - 1)) && err.contains(&format!("gmms {n},")), "{err}");
+}
+
+// --- The geometric segmenter: its masks bit for bit ---------------------------------------------------------------
+
+/// The segmenter's masks of `frame` as one fixture line: "<set> frame <k> | instances <n> | crc <crc32>".
+fn segmenter_line(mapper: &mut Mapper<'_>, set: &str, k: usize, frame: Frame<'_>) -> String {
+    let mut ids = vec![0u16; frame.pixels()];
+    let mut instances = vec![Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
+    let stats = mapper.segment(frame, &mut ids, &mut instances, 1).unwrap();
+    let found = &instances[..stats.instances as usize];
+    format!("{set} frame {k} | instances {} | crc {:08x}", found.len(), digest(&ids, found))
+}
+
+/// Checks (or, with `M2SMAP_BLESS=1`, writes) `fixtures/golden/segmenter_<set>.txt`.
+fn check_segmenter(set: &str, lines: &[String]) {
+    let path = fixture_path(&format!("segmenter_{set}.txt"));
+    if bless() {
+        let mut text = format!("# Golden segmenter fixture of {set} (tests/golden.rs). Regenerate: M2SMAP_BLESS=1 cargo test --release --test golden\n");
+        text.push_str(
+            "# <set> frame <k> | instances <n> | crc <CRC-32 of the id image and instances, segment::digest>\n",
+        );
+        for l in lines {
+            text.push_str(l);
+            text.push('\n');
+        }
+        std::fs::write(&path, text).unwrap();
+        return;
+    }
+    let text =
+        std::fs::read_to_string(&path).unwrap_or_else(|_| panic!("{path} missing: bless it with M2SMAP_BLESS=1"));
+    let blessed: Vec<&str> = text.lines().filter(|l| !l.starts_with('#') && !l.trim().is_empty()).collect();
+    let got: Vec<&str> = lines.iter().map(String::as_str).collect();
+    assert_eq!(got, blessed, "the segmenter's masks moved ({path}); re-bless with M2SMAP_BLESS=1 if intended");
+}
+
+#[test]
+fn synthetic_segmentations_match_their_golden_fixture() {
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+    let mut lines = Vec::new();
+    for name in ["tabletop", "clutter", "kitchen", "dining", "desk"] {
+        let scene = Scene::named(name).unwrap();
+        for k in [0, 3] {
+            let f = scene.render(k, Some(NOISE_SEED));
+            lines.push(segmenter_line(&mut mapper, name, k, f.frame.view_posed(&scene.camera, Some(&f.pose))));
+        }
+    }
+    assert!(lines.iter().all(|l| !l.contains("instances 0 ")), "every scene has instances: {lines:?}");
+    check_segmenter("synthetic", &lines);
+}
+
+#[test]
+fn real_segmentations_match_their_golden_fixture() {
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+    let mut lines = Vec::new();
+    for (set, frames) in
+        [("tum_fr3_cabinet", [0, 20, 40]), ("ycbv_0000", [0, 5, 9]), ("7scenes_redkitchen", [0, 150, 299])]
+    {
+        let Some(data) = common::shared_data(set) else { return };
+        let d = Dataset::open(&data, None).unwrap();
+        for k in frames {
+            let frame = d.load(k).unwrap();
+            lines.push(segmenter_line(&mut mapper, set, k, frame.view_posed(&d.camera, d.frames[k].pose.as_ref())));
+        }
+    }
+    check_segmenter("real", &lines);
 }
