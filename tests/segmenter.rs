@@ -4,7 +4,7 @@ mod common;
 
 use m2smap::eval::semantic_metrics;
 use m2smap::synth::Scene;
-use m2smap_core::{HostStorage, Instance, Mapper, Params};
+use m2smap_core::{Frame, HostStorage, Instance, Intrinsics, Mapper, Params};
 
 fn iou(a: &[u16], ida: u16, b: &[u16], idb: u16) -> f64 {
     let (mut inter, mut union) = (0u32, 0u32);
@@ -316,4 +316,49 @@ fn segmenting_between_frames_changes_no_map_and_gives_the_masks_mapping_uses() {
     let before = map(&busy);
     assert!(busy.segment(frame.frame.view(&scene.camera), &mut short, &mut [blank; 4], 0).is_err());
     assert_eq!(map(&busy), before);
+}
+
+/// Frames of any size segment without a panic, the grid coarsened where the id image has no room for its cells
+/// (tiny and odd sizes, one a column wider than 160 cells of 4 pixels): a tilted floor with a ball half sunk in
+/// it; every id names an instance of the list, and that instance's box holds the pixel.
+#[test]
+fn frames_of_any_size_segment_into_valid_masks() {
+    let mut storage = bytemuck::zeroed_box::<HostStorage>();
+    let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+    let mut found = 0;
+    for (w, h) in [(1u16, 2u16), (2, 1), (3, 2), (7, 5), (80, 60), (161, 3), (641, 481)] {
+        let (wu, hu) = (w as usize, h as usize);
+        // A ball of 12 cm radius half sunk in the floor at the image centre (the floor at 2 m, tilted).
+        let f = 525.0 * w as f32 / 640.0;
+        let depth: Vec<u16> = (0..wu * hu)
+            .map(|i| {
+                let (u, v) = (i % wu, i / wu);
+                let z = 2.0 + 0.002 * v as f32 + 0.0005 * u as f32;
+                let (du, dv) =
+                    ((u as f32 - w as f32 / 2.0) * z / f.max(1.0), (v as f32 - h as f32 / 2.0) * z / f.max(1.0));
+                let bump = (0.12f32 * 0.12 - du * du - dv * dv).max(0.0).sqrt();
+                ((z - bump) * 5000.0) as u16
+            })
+            .collect();
+        let colour: Vec<u8> = (0..wu * hu * 3).map(|i| (i * 37 % 251) as u8).collect();
+        let intrinsics = Intrinsics { fx: f.max(1.0), fy: f.max(1.0), cx: w as f32 / 2.0, cy: h as f32 / 2.0 };
+        let frame =
+            Frame { width: w, height: h, depth: &depth, depth_scale: 5000.0, colour: &colour, intrinsics, pose: None };
+        let mut ids = vec![u16::MAX; frame.pixels()];
+        let mut instances = vec![Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; 64];
+        let stats = mapper.segment(frame, &mut ids, &mut instances, 0).unwrap();
+        let n = stats.instances as usize;
+        found += n;
+        for (i, &id) in ids.iter().enumerate() {
+            assert!(id as usize <= n, "{w} × {h}: pixel {i} has id {id} of {n} instances");
+            if let Some(k) = (id as usize).checked_sub(1) {
+                let ([u0, v0, u1, v1], (u, v)) = (instances[k].bbox, ((i % wu) as u16, (i / wu) as u16));
+                assert!(
+                    (u0..=u1).contains(&u) && (v0..=v1).contains(&v),
+                    "{w} × {h}: pixel ({u}, {v}) outside its box"
+                );
+            }
+        }
+    }
+    assert!(found >= 1, "the ball is an instance on some frame");
 }
