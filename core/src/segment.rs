@@ -445,19 +445,22 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
                 }
                 let Some((pb, nb)) = (if shift == 0 { right } else { grid.cached_surfel(bx, by) }) else { continue };
                 let cos = linalg::dot(na, nb);
-                let towards = linalg::normalize_or(linalg::sub(pa, pb), [0.0; 3]);
-                let bend = linalg::dot(linalg::sub(na, nb), towards);
+                // bend = (n_a − n_b)·d̂ with d = p_a − p_b, compared without the square root and the division:
+                // bend ≥ CONVEX_MIN ⇔ e > 0 and e² ≥ CONVEX_MIN² |d|² (e = (n_a − n_b)·d); bend < 0 ⇔ e < 0.
+                let d = linalg::sub(pa, pb);
+                let e = linalg::dot(linalg::sub(na, nb), d);
+                let convex = e > 0.0 && e * e >= CONVEX_MIN * CONVEX_MIN * linalg::dot(d, d);
                 // A nearly flat boundary that bends inwards between cells of different colour is a contact (a
                 // ball on the floor, a can against a crate: the surfaces meet tangentially, so the concave
                 // crease is too faint for the normals), not one surface.
                 let contact = || {
                     let (ca, cb) = (colour_of(grid.index(cx, cy)), colour_of(grid.index(bx, by)));
-                    bend < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
+                    e < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
                 };
                 let mut bits = link::NORMALS;
                 bits |= if cos >= cos_plane { link::COPLANAR } else { 0 };
-                bits |= if bend >= CONVEX_MIN { link::CONVEX } else { 0 };
-                bits |= if bend >= CONVEX_MIN || (cos >= cos_flat && !contact()) { link::JOINS } else { 0 };
+                bits |= if convex { link::CONVEX } else { 0 };
+                bits |= if convex || (cos >= cos_flat && !contact()) { link::JOINS } else { 0 };
                 *word |= bits << shift;
             }
         }
