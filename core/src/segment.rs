@@ -288,6 +288,7 @@ mod link {
     /// Shift of the lower link's bits over the right one's.
     pub const DOWN_SHIFT: u16 = 4;
 }
+
 /// The centre pixel of cell (cx, cy) of a grid of `step`-pixel cells back-projected at raw depth `raw`, camera
 /// frame (metres).
 fn cell_point((step, cx, cy): (usize, usize, usize), frame: &Frame<'_>, raw: u16) -> Vec3 {
@@ -895,8 +896,8 @@ fn write_masks(
 ) {
     let (lo, hi) = frame.raw_range(params);
     let (w, h) = (frame.width as usize, frame.height as usize);
-    // Cell by cell from the last, each block's rows from the last: a pixel of cell c has an index ≥ c (the
-    // block starts at row cy·step ≥ cy, column cx·step ≥ cx), and every cell still to come is below c.
+    // Cell by cell from the last: a pixel of cell c has an index ≥ c (the block starts at row cy·step ≥ cy,
+    // column cx·step ≥ cx), and every cell still to come is below c.
     for cy in (0..rows).rev() {
         let (v0, v1) = (cy * step, ((cy + 1) * step).min(h));
         let vc = (v0 + step / 2).min(h - 1);
@@ -993,8 +994,8 @@ pub fn segment(
 ) -> SegmentStats {
     let mut stats = SegmentStats::default();
     // A grid of cells over the depth image (an organized cloud: neighbours are known without a search, and the
-    // cells are as fine at 0.5 m as at 4 m). `ids` holds the parents (n), the cells' depths (n), their quantised
-    // normals (3n) and mean colours (2n) until the masks.
+    // cells are as fine at 0.5 m as at 4 m). `ids` holds the parents (n), the cells' quantised normals (3n),
+    // mean colours (2n), link words (n) and points (6n, aligned) until the masks.
     let layout = Grid::layout(frame, scratch.len().min(ids.len().saturating_sub(1) / 13));
     let n = layout.1 * layout.2;
     let (parents, rest) = ids.split_at_mut(n.min(ids.len()));
