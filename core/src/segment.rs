@@ -124,12 +124,10 @@ impl<'f> Grid<'f> {
         let (lo, hi) = frame.raw_range(params);
         let mut cells = points.iter_mut().zip(colours.chunks_exact_mut(2));
         for cy in 0..rows {
-            let v0 = cy * step;
-            let (vc, v1) = ((v0 + step / 2).min(h - 1), (v0 + step).min(h));
+            let (v0, vc, v1) = block_span(cy, step, h);
             for cx in 0..cols {
                 let Some((point, rgb)) = cells.next() else { return };
-                let u0 = cx * step;
-                let (uc, u1) = ((u0 + step / 2).min(w - 1), (u0 + step).min(w));
+                let (u0, uc, u1) = block_span(cx, step, w);
                 *point = [0.0; 3];
                 let Some(centre) = frame.depth.get(vc * w + uc).copied().filter(|r| (lo..=hi).contains(r)) else {
                     continue;
@@ -330,18 +328,25 @@ fn sum_near(row: &[u16], near: (u16, i32)) -> (u32, u32) {
     (sum, n)
 }
 
-/// The raw depth a cell of `step × step` pixels from (u0, v0) is measured against: its centre pixel's when it
+/// The pixels of the `k`-th block of `step` pixels along an image axis of `len` pixels: its first, its centre
+/// (clamped to the image) and one past its last. A cell (cx, cy) of the grid is the block of columns
+/// `block_span(cx, step, width)` and rows `block_span(cy, step, height)`.
+fn block_span(k: usize, step: usize, len: usize) -> (usize, usize, usize) {
+    let first = k * step;
+    (first, (first + step / 2).min(len.saturating_sub(1)), (first + step).min(len))
+}
+
+/// The raw depth cell (cx, cy) of a grid of `step`-pixel cells is measured against: its centre pixel's when it
 /// lies in the depth range (`lo..=hi`), else the first in-range pixel of its block nearest the centre (rings of
 /// growing Chebyshev distance, each in raster order); `None` when the block has none.
 #[inline(never)]
-fn reference_depth(frame: &Frame<'_>, (lo, hi): (u16, u16), (u0, v0): (usize, usize), step: usize) -> Option<u16> {
+fn reference_depth(frame: &Frame<'_>, (lo, hi): (u16, u16), (cx, cy): (usize, usize), step: usize) -> Option<u16> {
     let (w, h) = (frame.width as usize, frame.height as usize);
-    let (uc, vc) = ((u0 + step / 2).min(w.saturating_sub(1)), (v0 + step / 2).min(h.saturating_sub(1)));
+    let ((u0, uc, u1), (v0, vc, v1)) = (block_span(cx, step, w), block_span(cy, step, h));
     let valid = |u: usize, v: usize| frame.depth.get(v * w + u).copied().filter(|r| (lo..=hi).contains(r));
     if let Some(r) = valid(uc, vc) {
         return Some(r);
     }
-    let (u1, v1) = ((u0 + step).min(w), (v0 + step).min(h));
     for ring in 1..step {
         for v in vc.saturating_sub(ring).max(v0)..(vc + ring + 1).min(v1) {
             for u in uc.saturating_sub(ring).max(u0)..(uc + ring + 1).min(u1) {
@@ -380,7 +385,7 @@ fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
             if grid.point(i).is_some() || !next_to_object() {
                 continue;
             }
-            let Some(raw) = reference_depth(frame, (lo, hi), (cx * grid.step, cy * grid.step), grid.step) else {
+            let Some(raw) = reference_depth(frame, (lo, hi), (cx, cy), grid.step) else {
                 continue;
             };
             let p = grid.centre_point(cx, cy, raw);
@@ -899,8 +904,7 @@ fn write_masks(
     // Cell by cell from the last: a pixel of cell c has an index ≥ c (the block starts at row cy·step ≥ cy,
     // column cx·step ≥ cx), and every cell still to come is below c.
     for cy in (0..rows).rev() {
-        let (v0, v1) = (cy * step, ((cy + 1) * step).min(h));
-        let vc = (v0 + step / 2).min(h - 1);
+        let (v0, _, v1) = block_span(cy, step, h);
         // The pixels of a run of cells without an instance are zeroed together, row by row, once the run ends
         // (its end: one past its last pixel column); its cells have been read by then.
         let mut zeros_end: Option<usize> = None;
@@ -913,28 +917,22 @@ fn write_masks(
         };
         for cx in (0..cols).rev() {
             let instance = ids.get(cy * cols + cx).copied().unwrap_or(0);
-            let (u0, u1) = (cx * step, ((cx + 1) * step).min(w));
+            let (u0, _, u1) = block_span(cx, step, w);
             if instance == 0 {
                 zeros_end.get_or_insert(u1);
                 continue;
             }
             zero(ids, u1, zeros_end.take());
-            // The pixel must lie on its cell's surface: within the jump tolerance of the cell's centre pixel.
-            let uc = (cx * step + step / 2).min(w - 1);
-            let centre = frame.depth.get(vc * w + uc).copied().unwrap_or(0);
-            // A cell whose centre pixel has no depth is measured against its reference pixel (it took an
-            // instance in [`adopt_holed_cells`]).
-            let centre = if (lo..=hi).contains(&centre) {
-                centre
-            } else {
-                reference_depth(frame, (lo, hi), (cx * step, v0), step).unwrap_or(0)
-            };
-            // Without a reference, no pixel takes the instance.
-            let near = if (lo..=hi).contains(&centre) {
-                let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
-                near_interval((lo, hi), centre, tolerance)
-            } else {
-                NOWHERE
+            // The pixel must lie on its cell's surface: within the jump tolerance of the cell's centre pixel, or of
+            // its reference pixel when the centre has no depth (a holed cell that took an instance in
+            // [`adopt_holed_cells`]); without a reference, no pixel takes the instance.
+            let near = match reference_depth(frame, (lo, hi), (cx, cy), step) {
+                Some(centre) => {
+                    let tolerance =
+                        (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
+                    near_interval((lo, hi), centre, tolerance)
+                }
+                None => NOWHERE,
             };
             for v in (v0..v1).rev() {
                 let (depth, row) = match (frame.depth.get(v * w + u0..v * w + u1), ids.get_mut(v * w + u0..v * w + u1))
