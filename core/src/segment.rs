@@ -176,11 +176,6 @@ impl<'f> Grid<'f> {
         self.point(cy * self.cols + cx)
     }
 
-    /// Cell (cx, cy)'s centre pixel back-projected at raw depth `raw`, camera frame (metres).
-    fn centre_point(&self, cx: usize, cy: usize, raw: u16) -> Vec3 {
-        cell_point((self.step, cx, cy), self.frame, raw)
-    }
-
     /// [`Grid::point_at`] of cell index `i`.
     #[inline]
     fn point(&self, i: usize) -> Option<Vec3> {
@@ -201,11 +196,7 @@ impl<'f> Grid<'f> {
 
     /// [`Grid::surfel`] from the normals computed once per cell (quantised to 1/32767).
     fn cached_surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
-        self.cached_normal(cx, cy, self.point_at(cx, cy)?)
-    }
-
-    /// The cached normal of cell (cx, cy) with its point `p`.
-    fn cached_normal(&self, cx: usize, cy: usize, p: Vec3) -> Option<(Vec3, Vec3)> {
+        let p = self.point_at(cx, cy)?;
         let i = 3 * self.index(cx, cy);
         let &[a, b, c] = self.normals.get(i..i + 3)? else { return None };
         const K: f32 = 1.0 / 32767.0;
@@ -388,7 +379,7 @@ fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
             let Some(raw) = reference_depth(frame, (lo, hi), (cx, cy), grid.step) else {
                 continue;
             };
-            let p = grid.centre_point(cx, cy, raw);
+            let p = cell_point((grid.step, cx, cy), frame, raw);
             let mut best: Option<(f32, u16)> = None;
             for (x, y) in four_neighbours(cx, cy) {
                 let Some((q, normal)) = grid.cached_surfel(x, y) else { continue };
