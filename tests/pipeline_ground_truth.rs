@@ -195,11 +195,54 @@ fn full_pools_drop_and_count_instead_of_panicking() {
 }
 
 #[test]
+fn a_full_voxel_pool_maps_the_frame_with_coarser_voxels() {
+    use m2smap_core::mapper::{VOXEL_COARSEN, VOXEL_COARSENINGS};
+    use m2smap_core::{PoolId, Storage};
+    // The tabletop's frame 0 needs more 3 cm voxels than this pool holds (measured below), and fewer than it holds
+    // at the coarsest edge: the frame is mapped whole, over the full range, with coarser voxels; no point is lost.
+    type Short = Storage<8192, 16384, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536, 8192>;
+    let scene = Scene::named("tabletop").unwrap();
+    let frame = scene.render(0, Some(2));
+    let view = frame.frame.view(&scene.camera);
+    let params = Params::default();
+    let mut host = bytemuck::zeroed_box::<HostStorage>();
+    let full = *Mapper::new(&mut *host, params).unwrap().process(view, None).unwrap();
+    assert!(full.voxels > 8192, "the frame needs {} voxels", full.voxels);
+    assert_eq!(full.voxel_resolution_m, params.voxel_resolution);
+    let coarsest = params.voxel_resolution * VOXEL_COARSEN.powi(VOXEL_COARSENINGS as i32);
+    let mut storage = bytemuck::zeroed_box::<Short>();
+    let mut mapper = Mapper::new(&mut *storage, params).unwrap();
+    for _ in 0..2 {
+        let r = *mapper.process(view, None).unwrap();
+        assert!(r.voxel_resolution_m > params.voxel_resolution && r.voxel_resolution_m <= coarsest * 1.0001);
+        assert_eq!(r.voxel_range_m, params.depth_max, "the full range");
+        // The first try's refused inserts are reported; nothing was refused with the voxels kept.
+        assert!(r.pool(PoolId::Voxels).overflow_events > 0 && r.voxels <= 8192);
+        assert_eq!((r.points, r.dropped_points), (full.points, 0), "every in-range point is in a voxel");
+        let mapped: u32 = mapper.gaussians().iter().map(|g| g.count).sum();
+        assert_eq!(mapped + r.outlier_points, r.points, "every point is mapped or an outlier");
+        // The voxels are the coarser ones: a voxel's centroid (the mean of its points) lies in its cube of the
+        // frame's edge (`Mapper::voxel_at` finds it; a centroid rounded onto a cube's face may miss), not of 3 cm.
+        let found = |edge: f32| {
+            let own = mapper.voxels().iter().filter(|v| {
+                let c = v.centroid(edge);
+                m2smap_core::supervoxel::voxel_key(c, edge, 0) == Some(v.key)
+            });
+            own.count() as f32 / mapper.voxels().len() as f32
+        };
+        assert!(found(r.voxel_resolution_m) > 0.99 && found(params.voxel_resolution) < 0.5);
+        assert!(mapper.voxels().iter().all(|v| mapper.voxel_at(v.centroid(r.voxel_resolution_m), 0).is_some()));
+        assert_eq!(mapper.params().voxel_resolution, params.voxel_resolution, "the configured edge is back");
+    }
+}
+
+#[test]
 fn a_full_voxel_pool_drops_the_farthest_points() {
     use m2smap_core::mapper::VOXEL_RANGE_CUT;
     use m2smap_core::{PoolId, Storage};
-    // The tabletop's frame 0 needs more voxels over the full range than this pool holds (measured below), and
-    // they fit over a nearer one: the frame is mapped over that range, whole, and the far points are the lost ones.
+    // The tabletop's frame 0 needs more voxels over the full range than this pool holds even at the coarsest
+    // edge (measured below), and they fit over a nearer one: the frame is mapped over that range, whole, and the
+    // far points are the lost ones.
     type Short = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536, 2048>;
     let scene = Scene::named("tabletop").unwrap();
     let frame = scene.render(0, Some(2));
@@ -218,7 +261,7 @@ fn a_full_voxel_pool_drops_the_farthest_points() {
         // The full range's refused inserts are reported; nothing was refused over the range kept.
         assert!(r.pool(PoolId::Voxels).overflow_events > 0 && r.voxels <= 2048);
         assert_eq!(r.points, full.points, "the in-range points of the configured range");
-        let far = mapper.voxels().iter().map(|v| v.centroid(params.voxel_resolution)[2]).fold(0.0f32, f32::max);
+        let far = mapper.voxels().iter().map(|v| v.centroid(r.voxel_resolution_m)[2]).fold(0.0f32, f32::max);
         assert!(far <= range, "a voxel at {far} m beyond the range {range} m");
         // Every later stage saw the same range: each point is mapped, an outlier, or dropped (beyond it).
         let mapped: u32 = mapper.gaussians().iter().map(|g| g.count).sum();

@@ -400,7 +400,8 @@ fn execute(cli: Cli) -> Result<()> {
                     dir.join("world_summary.json").display()
                 );
             }
-            // Overflow drops data (points, voxels, Gaussians …): say which pools, so it is never silent.
+            // Overflow drops or coarsens data (points, voxels, Gaussians …): say which pools and what the voxel
+            // pool's drop policy did, so it is never silent.
             let full: Vec<String> = s
                 .pools
                 .iter()
@@ -409,9 +410,13 @@ fn execute(cli: Cli) -> Result<()> {
                 .collect();
             if !full.is_empty() {
                 eprintln!(
-                    "warning: the {} profile's pools overflowed, data was dropped: {} (see memory_budget.md; --profile host has room)",
+                    "warning: the {} profile's pools overflowed: {}; {} frames mapped with coarser voxels, {} over a \
+                     nearer depth range, {} points dropped (see memory_budget.md; --profile host has room)",
                     s.profile,
-                    full.join(", ")
+                    full.join(", "),
+                    s.frames_coarser_voxels,
+                    s.frames_nearer_range,
+                    s.dropped_points
                 );
             }
             Ok(())

@@ -152,8 +152,12 @@ pub struct FrameRecord {
     /// Points lost to full pools.
     pub dropped_points: u32,
     /// Far end of the depth range the frame was mapped over, metres (nearer than `depth_max` when its voxels
-    /// did not fit the pool: the voxel pool's drop policy, `m2smap_core::mapper::VOXEL_RANGE_CUT`).
+    /// did not fit the pool even at the coarsest voxels: the voxel pool's drop policy,
+    /// `m2smap_core::mapper::VOXEL_RANGE_CUT`).
     pub voxel_range_m: f64,
+    /// Voxel edge the frame was mapped with, metres (coarser than `voxel_resolution` when its voxels did not
+    /// fit the pool: `m2smap_core::mapper::VOXEL_COARSEN`).
+    pub voxel_resolution_m: f64,
     /// Primitive counts.
     pub primitives: Primitives,
     /// Wire payload, bytes.
@@ -250,6 +254,14 @@ pub struct Summary {
     pub frames_rejected: usize,
     /// Frames dropped from the stream (fault injection).
     pub frames_dropped: usize,
+    /// Frames whose voxels did not fit the pool at the configured edge and were mapped with coarser ones
+    /// (`m2smap_core::mapper::VOXEL_COARSEN`).
+    pub frames_coarser_voxels: usize,
+    /// Frames whose voxels did not fit the pool even at the coarsest edge and were mapped over a nearer depth
+    /// range (`m2smap_core::mapper::VOXEL_RANGE_CUT`).
+    pub frames_nearer_range: usize,
+    /// Points lost to full pools over the run (beyond a nearer range, or refused by a full voxel).
+    pub dropped_points: u64,
     /// Largest move of a superquadric track between two frames, metres.
     pub max_track_step_m: f64,
     /// Variant name.
@@ -550,7 +562,7 @@ pub fn run(opts: &RunOptions) -> Result<Summary> {
         ProfileChoice::Mcu => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<McuStorage>())?,
         ProfileChoice::Tiny => replay(&dataset, params, opts, &mut *bytemuck::zeroed_box::<TinyStorage>())?,
     };
-    let mut summary = summarise(&records, params.variant, opts.profile);
+    let mut summary = summarise(&records, &params, opts.profile);
     summary.world = world;
     let c = &dataset.camera;
     let subsampled = match dataset.downscale {
@@ -736,6 +748,7 @@ fn replay<P: Profile + Zeroable>(
                 outlier_points: report.outlier_points,
                 dropped_points: report.dropped_points,
                 voxel_range_m: report.voxel_range_m as f64,
+                voxel_resolution_m: report.voxel_resolution_m as f64,
                 primitives: Primitives {
                     plane: Some(report.planes as f64),
                     sq: Some(sq.unwrap_or(0.0)),
@@ -814,7 +827,8 @@ fn p95_and_max(values: &[f64]) -> (Option<f64>, Option<f64>) {
     (eval::percentile(values, 0.95), values.iter().copied().reduce(f64::max))
 }
 
-fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> Summary {
+fn summarise(all: &[FrameRecord], params: &Params, profile: ProfileChoice) -> Summary {
+    let variant = params.variant;
     // Dropped and rejected frames have no map: they are counted, not averaged.
     let records: Vec<FrameRecord> =
         all.iter().filter(|r| r.rejected.is_none() && r.fault != Some(Fault::Dropped)).cloned().collect();
@@ -838,6 +852,12 @@ fn summarise(all: &[FrameRecord], variant: Variant, profile: ProfileChoice) -> S
         frames: records.len(),
         frames_rejected: all.iter().filter(|r| r.rejected.is_some()).count(),
         frames_dropped: all.iter().filter(|r| r.fault == Some(Fault::Dropped)).count(),
+        frames_coarser_voxels: records
+            .iter()
+            .filter(|r| r.voxel_resolution_m > f64::from(params.voxel_resolution) * 1.001)
+            .count(),
+        frames_nearer_range: records.iter().filter(|r| r.voxel_range_m < f64::from(params.depth_max) * 0.999).count(),
+        dropped_points: records.iter().map(|r| u64::from(r.dropped_points)).sum(),
         max_track_step_m: records.iter().map(|r| r.max_track_step_m).fold(0.0, f64::max),
         variant: variant.name().to_owned(),
         profile: match profile {
