@@ -1,5 +1,6 @@
 //! The superquadric stage alone, with every track forgotten before it (every object fitted from its initial
-//! guesses), on the frames of a dataset: its time, the fits, and a CRC-32 over every frame's encoded map. A
+//! guesses), on the frames of a dataset: its time, the fits, the median time of the stages before it, and a
+//! CRC-32 over every frame's encoded map. A
 //! change meant to make the fit cheaper without changing its results must leave the CRC as it was; under
 //! `valgrind --tool=callgrind --toggle-collect='*stage_superquadrics*'` it counts the stage's instructions.
 //!
@@ -48,16 +49,19 @@ fn run() -> Result<()> {
     .map_err(|e| anyhow!("parameters: {e}"))?;
     let mut buf = vec![0u8; 1 << 20];
     let (mut ms, mut fits, mut sqs, mut crc, mut frames) = (0.0f64, 0u64, 0u64, 0xFFFF_FFFFu32, 0usize);
+    let mut before: Vec<f64> = Vec::new();
     for i in (0..d.frames.len()).step_by(step).take(limit).flat_map(|i| std::iter::repeat_n(i, reps)) {
         let frame = d.load(i)?;
         let masks = read_frame_masks(&masks_dir, &d.frames[i].stem, frame.width, frame.height, &mut labels)?;
         let view = frame.view_posed(&d.camera, d.frames[i].pose.as_ref());
+        let t0 = Instant::now();
         let checked = mapper.check(view, masks.as_ref().map(|m| m.view())).map_err(|e| anyhow!("frame {i}: {e}"))?;
         mapper.stage_voxels(&checked);
         mapper.stage_supervoxels();
         mapper.stage_gaussians(&checked);
         mapper.stage_annotate(&checked);
         mapper.stage_separate(&checked);
+        before.push(t0.elapsed().as_secs_f64() * 1e3);
         if !warm {
             mapper.reset_tracks();
         }
@@ -72,8 +76,10 @@ fn run() -> Result<()> {
         frames += 1;
     }
     println!(
-        "{frames} frames, {fits} fits, {sqs} accepted, superquadric stage {ms:.1} ms ({:.3} ms per fit), maps crc {:08x}",
+        "{frames} frames, {fits} fits, {sqs} accepted, superquadric stage {ms:.1} ms ({:.3} ms per fit), the stages \
+         before it {:.3} ms per frame (median), maps crc {:08x}",
         ms / fits.max(1) as f64,
+        m2smap::run::median(&before),
         !crc
     );
     Ok(())
