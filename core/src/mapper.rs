@@ -833,6 +833,7 @@ impl<'s> Mapper<'s> {
                 let turned = if params.variant.aligns() { crate::track::align(&w.sq, &c.sq) } else { c.sq };
                 c.accepted
                     && c.error < RESEARCH_GAIN * w.error
+                    && crate::world::agree(&w.sq, &c.sq)
                     && linalg::rotation_angle_between(&w.sq.rotation, &turned.rotation)
                         <= RESEARCH_TURN_DEG.to_radians()
             };

@@ -1045,7 +1045,7 @@ fn fill_holes(cells: &mut [u8; WORLD_GRID_BYTES]) {
 /// Whether two fits `a`, `b` of one object agree: centres within max([`PUBLISH_MOVE_M`], [`AGREEMENT`] × the
 /// largest half-axis of either) and the half-axes, sorted (a fit may order its axes differently), each within
 /// [`AGREEMENT`] of the larger.
-fn agree(a: &Superquadric, b: &Superquadric) -> bool {
+pub(crate) fn agree(a: &Superquadric, b: &Superquadric) -> bool {
     let sorted = |s: Vec3| {
         let mut s = s;
         s.sort_unstable_by(|x, y| x.total_cmp(y));
