@@ -346,8 +346,8 @@ fn the_camera_used_is_reported() {
     assert!(err.contains("warning: --camera fr3") && err.contains("says fr1"), "{err}");
 }
 
-/// A run whose pools overflow says so on stderr, naming the pools (the mcu and tiny profiles drop data on
-/// frames larger than they are sized for).
+/// A run whose pools overflow says so on stderr, naming the pools and what the voxel pool's drop policy did (the
+/// mcu and tiny profiles coarsen or drop data on frames larger than they are sized for).
 #[test]
 fn pool_overflow_is_never_silent() {
     let dir = tempfile::tempdir().unwrap();
@@ -357,6 +357,12 @@ fn pool_overflow_is_never_silent() {
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     assert!(o.status.success(), "{err}");
     assert!(err.contains("warning: the tiny profile's pools overflowed") && err.contains("voxels ("), "{err}");
+    // What the voxel pool's drop policy did, also in summary.json: the tiny profile's voxels do not fit even at
+    // the coarsest edge, so its frame is mapped over a nearer range and loses points.
+    let s: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let (coarser, nearer, dropped) = (&s["frames_coarser_voxels"], &s["frames_nearer_range"], &s["dropped_points"]);
+    assert!(err.contains(&format!("{coarser} frames mapped with coarser voxels, {nearer} over a nearer depth range")));
+    assert!(coarser.as_u64() == Some(1) && nearer.as_u64() == Some(1) && dropped.as_u64() > Some(0), "{s}");
     let o = m2smap(&["run", scene.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(!String::from_utf8_lossy(&o.stderr).contains("overflowed"), "the host profile has room");
 }
