@@ -27,10 +27,11 @@ use crate::wire::{self, WireError};
 /// Most objects whose fit points are gathered in one pass over the frame.
 const MAX_OBJECTS_PER_PASS: usize = 64;
 /// A track's object also gets the cold search beside its warm start when the track has this many updates, and
-/// then at each doubling of it (3, 6, 12, 24, …; the first after two warm refits): warm refits can settle in a
-/// worse basin than a fresh search finds and carry it on frame by frame (ycbv_0000's gelatin box thinned from
-/// 2.5 to 2.3 cm over nine refits, while the cold search of each frame found 2.4–2.9 cm at a lower error), and a
-/// long-lived track pays for a logarithmic number of searches.
+/// then at each doubling of it (3, 6, 12, 24, …; the first after two warm refits), when the warm refit used its
+/// whole iteration budget (`lm_max_iters`: the shape was still moving). Warm refits can settle in a worse basin
+/// than a fresh search finds and carry it on frame by frame (ycbv_0000's gelatin box thinned from 2.5 to 2.3 cm
+/// over nine refits, while the cold search of each frame found 2.4–2.9 cm at a lower error), and a long-lived
+/// track pays for a logarithmic number of searches; a refit that converged is left alone.
 const RESEARCH_FIRST_UPDATE: u32 = 3;
 /// The cold search's fit replaces the warm one when it is accepted, its error is below this share of the warm
 /// one's, it agrees with the warm fit as two sightings of a world object must (`world::agree`: a re-search
@@ -818,8 +819,9 @@ impl<'s> Mapper<'s> {
             // gave no acceptable warm start) skips its cold search on all but every `REFUSAL_RETRY_FRAMES`-th
             // frame (see `track::Refusal`): it keeps its Gaussians meanwhile, or its track's held state.
             skipped = warm.is_none() && self.tracker.skips_search(track_centre, object.class, &params);
-            // The track's re-search ([`RESEARCH_FIRST_UPDATE`]): the cold search beside an accepted warm start.
-            let research = warm.is_some()
+            // The track's re-search ([`RESEARCH_FIRST_UPDATE`]): the cold search beside an accepted warm start
+            // that did not converge.
+            let research = warm.is_some_and(|w| w.iterations >= params.lm_max_iters)
                 && own.and_then(|i| self.tracker.tracks.get(i)).is_some_and(|t| {
                     t.updates % RESEARCH_FIRST_UPDATE == 0 && (t.updates / RESEARCH_FIRST_UPDATE).is_power_of_two()
                 });
