@@ -189,8 +189,6 @@ pub struct Mapper<'s> {
     /// The configured `voxel_resolution`: `params.voxel_resolution` is coarser during a frame whose voxels did
     /// not fit.
     voxel_resolution: f32,
-    /// The voxel edge of the last frame's voxels, metres ([`FrameReport::voxel_resolution_m`]).
-    frame_voxel_resolution: f32,
     max_pixels: usize,
     voxels: Bounded<'s, Voxel>,
     slots: &'s mut [u16],
@@ -237,7 +235,6 @@ impl<'s> Mapper<'s> {
             params,
             depth_max: params.depth_max,
             voxel_resolution: params.voxel_resolution,
-            frame_voxel_resolution: params.voxel_resolution,
             max_pixels: P::MAX_PIXELS,
             voxels: Bounded::new(parts.voxels),
             slots: parts.slots,
@@ -413,7 +410,6 @@ impl<'s> Mapper<'s> {
             stats.slot_overflows = stats.slot_overflows.saturating_add(refused_slots);
             stats.dropped_points += in_range.saturating_sub(stats.points);
         }
-        self.frame_voxel_resolution = self.params.voxel_resolution;
         self.report.voxel_resolution_m = self.params.voxel_resolution;
         self.sampled_complete = self.sampled.capacity() > 0 && self.sampled.usage().overflow_events == 0;
         self.sampled_from = depth_buffer(&checked.frame);
@@ -995,7 +991,9 @@ impl<'s> Mapper<'s> {
     /// The voxel of the last frame that a camera-frame point falls into (any point, sampled or not), in mask
     /// slot `slot` (0 for frames mapped without mask slots; see [`Mapper::voxel_masks`]).
     pub fn voxel_at(&self, p: Vec3, slot: u32) -> Option<&Voxel> {
-        supervoxel::voxel_at(self.voxels.as_slice(), self.slots, p, self.frame_voxel_resolution, slot).map(|(_, v)| v)
+        // The last frame's voxel edge: the report's, never below the configured one (0 before the first frame).
+        let edge = self.report.voxel_resolution_m.max(self.voxel_resolution);
+        supervoxel::voxel_at(self.voxels.as_slice(), self.slots, p, edge, slot).map(|(_, v)| v)
     }
 
     /// Bounded planes of the last frame.
