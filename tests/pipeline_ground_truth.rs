@@ -194,6 +194,19 @@ fn full_pools_drop_and_count_instead_of_panicking() {
     }
 }
 
+/// The synthetic tabletop's frame 0 (noise seed 2), which the pool tests below map with short voxel pools.
+fn tabletop_frame_zero() -> (Scene, m2smap::synth::SynthFrame) {
+    let scene = Scene::named("tabletop").unwrap();
+    let frame = scene.render(0, Some(2));
+    (scene, frame)
+}
+
+/// The report of `view` mapped by a fresh mapper over the host profile's pools (room for every voxel).
+fn host_report(view: m2smap_core::Frame<'_>, params: Params) -> m2smap_core::FrameReport {
+    let mut host = bytemuck::zeroed_box::<HostStorage>();
+    *Mapper::new(&mut *host, params).unwrap().process(view, None).unwrap()
+}
+
 #[test]
 fn a_full_voxel_pool_maps_the_frame_with_coarser_voxels() {
     use m2smap_core::mapper::{VOXEL_COARSEN, VOXEL_COARSENINGS};
@@ -201,12 +214,10 @@ fn a_full_voxel_pool_maps_the_frame_with_coarser_voxels() {
     // The tabletop's frame 0 needs more 3 cm voxels than this pool holds (measured below), and fewer than it holds
     // at the coarsest edge: the frame is mapped whole, over the full range, with coarser voxels; no point is lost.
     type Short = Storage<8192, 16384, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536, 8192>;
-    let scene = Scene::named("tabletop").unwrap();
-    let frame = scene.render(0, Some(2));
+    let (scene, frame) = tabletop_frame_zero();
     let view = frame.frame.view(&scene.camera);
     let params = Params::default();
-    let mut host = bytemuck::zeroed_box::<HostStorage>();
-    let full = *Mapper::new(&mut *host, params).unwrap().process(view, None).unwrap();
+    let full = host_report(view, params);
     assert!(full.voxels > 8192, "the frame needs {} voxels", full.voxels);
     assert_eq!(full.voxel_resolution_m, params.voxel_resolution);
     let coarsest = params.voxel_resolution * VOXEL_COARSEN.powi(VOXEL_COARSENINGS as i32);
@@ -223,19 +234,15 @@ fn a_full_voxel_pool_maps_the_frame_with_coarser_voxels() {
         assert_eq!(mapped + r.outlier_points, r.points, "every point is mapped or an outlier");
         // The voxels are the coarser ones: a voxel's centroid (the mean of its points) lies in its cube of the
         // frame's edge (`Mapper::voxel_at` finds it; a centroid rounded onto a cube's face may miss), not of 3 cm.
-        let found = |edge: f32| {
-            let own = mapper.voxels().iter().filter(|v| {
-                let c = v.centroid(edge);
-                m2smap_core::supervoxel::voxel_key(c, edge, 0) == Some(v.key)
-            });
-            own.count() as f32 / mapper.voxels().len() as f32
+        let share = |own: &dyn Fn(&m2smap_core::supervoxel::Voxel) -> bool| {
+            mapper.voxels().iter().filter(|v| own(v)).count() as f32 / mapper.voxels().len() as f32
         };
-        assert!(found(r.voxel_resolution_m) > 0.99 && found(params.voxel_resolution) < 0.5);
+        let keyed =
+            |edge: f32| share(&|v| m2smap_core::supervoxel::voxel_key(v.centroid(edge), edge, 0) == Some(v.key));
+        assert!(keyed(r.voxel_resolution_m) > 0.99 && keyed(params.voxel_resolution) < 0.5);
         // `Mapper::voxel_at` looks the voxels up with the frame's edge.
-        let own_voxel = |v: &&m2smap_core::supervoxel::Voxel| {
-            mapper.voxel_at(v.centroid(r.voxel_resolution_m), 0).is_some_and(|found| found.key == v.key)
-        };
-        let looked_up = mapper.voxels().iter().filter(own_voxel).count() as f32 / mapper.voxels().len() as f32;
+        let looked_up =
+            share(&|v| mapper.voxel_at(v.centroid(r.voxel_resolution_m), 0).is_some_and(|found| found.key == v.key));
         assert!(looked_up > 0.99, "{looked_up}");
         assert_eq!(mapper.params().voxel_resolution, params.voxel_resolution, "the configured edge is back");
     }
@@ -249,12 +256,10 @@ fn a_full_voxel_pool_drops_the_farthest_points() {
     // edge (measured below), and they fit over a nearer one: the frame is mapped over that range, whole, and the
     // far points are the lost ones.
     type Short = Storage<2048, 4096, 1024, 2048, 1024, 2048, 64, 254, 64, 4096, { 640 * 480 }, 65536, 2048>;
-    let scene = Scene::named("tabletop").unwrap();
-    let frame = scene.render(0, Some(2));
+    let (scene, frame) = tabletop_frame_zero();
     let view = frame.frame.view(&scene.camera);
     let params = Params::default();
-    let mut host = bytemuck::zeroed_box::<HostStorage>();
-    let full = *Mapper::new(&mut *host, params).unwrap().process(view, None).unwrap();
+    let full = host_report(view, params);
     assert!(full.voxels > 2048, "the frame needs {} voxels", full.voxels);
     assert_eq!(full.voxel_range_m, params.depth_max);
     let mut storage = bytemuck::zeroed_box::<Short>();
