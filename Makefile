@@ -12,7 +12,7 @@ FW_DECODE_MANIFEST := firmware/defmt-decode/Cargo.toml
 FW_DECODE := firmware/defmt-decode/target/debug/m2smap-defmt-decode
 QEMU := timeout 600 qemu-system-arm -machine mps2-an500 -nographic -semihosting-config enable=on,target=native -icount shift=0
 
-.PHONY: demo test lint bench eval core-nostd budget firmware firmware-check fuzz
+.PHONY: demo test lint bench eval sweep core-nostd budget firmware firmware-check fuzz
 FUZZ_SECONDS ?= 600
 FUZZ_TARGETS := wire_decode mapper_frame masks_parse lists_parse
 
@@ -54,6 +54,13 @@ core-nostd:
 	@if ! rustup target list --installed 2>/dev/null | grep -q $(TARGET_MCU); then \
 		rustup target add $(TARGET_MCU) || { echo "make test: cannot install $(TARGET_MCU); the no_std build is NOT checked"; exit 1; }; fi
 	$(CARGO) build -p m2smap-core --target $(TARGET_MCU) --release
+
+## How `full` generalises: every synthetic scene x seeds 1-3 x masks eroded by 2 px (10 % missing) or dilated by
+## 2 px, scored against the superquadric issue's targets; writes target/sweep/sweep.md. Other grids through
+## SWEEP_ARGS, e.g. SWEEP_ARGS="--seeds 4,5 --masks erode1,erode3,dilate1,dilate3".
+SWEEP_ARGS ?=
+sweep:
+	$(CARGO) run --release -p m2smap -- sweep --out target/sweep $(SWEEP_ARGS)
 
 ## Median time per stage on the cabinet and redkitchen frames (../shared/data) and on synthetic frames.
 bench:

@@ -222,3 +222,69 @@ fn eval_refuses_a_missing_dataset_in_one_line() {
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("nope"), "{err}");
 }
+
+/// `m2smap sweep` on a small grid: each row of sweep.json carries its run's own summary.json figures, the misses
+/// are exactly the figures beyond the targets (adhesion 0 with perfect masks), and sweep.md counts and
+/// lists the same runs.
+#[test]
+fn sweep_scores_each_run_from_its_own_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sweep");
+    let o = m2smap(&[
+        "sweep",
+        "--out",
+        out.to_str().unwrap(),
+        "--scenes",
+        "tabletop,clutter",
+        "--seeds",
+        "2",
+        "--masks",
+        "perfect,dilate2",
+        "--frames",
+        "3",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_str(&fs::read_to_string(out.join("sweep.json")).unwrap()).unwrap();
+    let runs = json["runs"].as_array().unwrap();
+    let names: Vec<&str> = runs.iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["tabletop-2-perfect", "tabletop-2-dilate2", "clutter-2-perfect", "clutter-2-dilate2"]);
+    let md = fs::read_to_string(out.join("sweep.md")).unwrap();
+    let mut met = 0;
+    for r in runs {
+        let name = r["name"].as_str().unwrap();
+        let s: serde_json::Value =
+            serde_json::from_str(&fs::read_to_string(out.join("runs").join(name).join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(s["frames"], 3, "{name}");
+        let pairs = [
+            ("penetration_p95_m", "penetration_sq_p95_m", 0.01),
+            ("penetration_max_m", "penetration_sq_max_m", 0.02),
+            ("g2r_true_m", "g2r_true_rmse_m", 0.015),
+            ("adhesion", "adhesion_map", if name.ends_with("perfect") { 0.0 } else { 0.2 }),
+        ];
+        let mut expected_misses = Vec::new();
+        for (key, summary_key, limit) in pairs {
+            assert_eq!(r[key], s[summary_key], "{name}: {key}");
+            assert!(s[summary_key].is_number(), "{name}: {summary_key} measured");
+            if s[summary_key].as_f64().unwrap() > limit {
+                expected_misses.push(key);
+            }
+        }
+        let misses: Vec<&str> = r["missed"].as_array().unwrap().iter().map(|m| m.as_str().unwrap()).collect();
+        assert_eq!(misses, expected_misses, "{name}");
+        met += usize::from(misses.is_empty());
+        let row = md.lines().find(|l| l.starts_with(&format!("| {name} |"))).unwrap_or_else(|| panic!("{name} row"));
+        assert_eq!(row.matches(" !").count(), misses.len(), "{row}");
+    }
+    assert!(md.contains(&format!("**{met} of 4 runs meet every target.**")), "{md}");
+}
+
+#[test]
+fn sweep_refuses_an_unknown_degradation_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = m2smap(&["sweep", "--out", dir.path().join("o").to_str().unwrap(), "--masks", "erode2,blur2"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("blur2"), "{err}");
+}

@@ -16,5 +16,6 @@ pub mod raycast;
 pub mod render;
 pub mod report;
 pub mod run;
+pub mod sweep;
 pub mod synth;
 pub mod world;

@@ -11,7 +11,7 @@ use m2smap::dataset::Dataset;
 use m2smap::masks::{mask_dir, LabelTable};
 use m2smap::run::{map_frame, MaskSource, SegmenterBuffers};
 use m2smap::run::{run, ProfileChoice, RunOptions, Segmenter};
-use m2smap::{budget, export, render, report, synth};
+use m2smap::{budget, export, render, report, sweep, synth};
 use m2smap_core::{HostStorage, Mapper, McuStorage, Params, TinyStorage};
 
 /// What `render` and `export` map a frame with.
@@ -306,6 +306,26 @@ enum Command {
         #[arg(long)]
         frames: Option<usize>,
     },
+    /// Map every synthetic scene × seed × mask degradation with `full` and score each run against the
+    /// superquadric issue's synthetic targets; writes DIR/sweep.md and DIR/sweep.json (scenes made under
+    /// DIR/data, runs in DIR/runs).
+    Sweep {
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Scenes (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "tabletop,shelf,desk,kitchen,clutter,dining")]
+        scenes: Vec<String>,
+        /// Seeds of the sensor noise and of the mask degradation (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
+        seeds: Vec<u32>,
+        /// Mask degradations (comma-separated): perfect, erodeN (N px, 10 % of the masks missing), dilateN.
+        #[arg(long, value_delimiter = ',', default_value = "erode2,dilate2")]
+        masks: Vec<String>,
+        /// Frames per run.
+        #[arg(long, default_value_t = 10)]
+        frames: usize,
+    },
     /// Print the memory budget table of the mcu profile.
     Budget,
     /// Export frames for the firmware image, with the host's map digests (expected.txt).
@@ -425,6 +445,14 @@ fn execute(cli: Cli) -> Result<()> {
             let opts = report::EvalOptions { datasets, out: out.clone(), frames, verbose: true };
             report::evaluate(&opts)?;
             println!("report: {}", out.join("report.md").display());
+            Ok(())
+        }
+        Command::Sweep { out, scenes, seeds, masks, frames } => {
+            let opts =
+                sweep::SweepOptions { out: out.clone(), scenes, seeds, degradations: masks, frames, verbose: true };
+            let runs = sweep::sweep(&opts)?;
+            let met = runs.iter().filter(|r| r.missed.is_empty()).count();
+            println!("{met} of {} runs meet every target -> {}", runs.len(), out.join("sweep.md").display());
             Ok(())
         }
         Command::Synth { scene, frames, seed, no_noise, out, mask_erode, mask_dilate, mask_miss, mask_score_noise } => {
