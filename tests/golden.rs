@@ -25,6 +25,11 @@
 //!   real frames of cabinet, ycbv_0000 and redkitchen (skipped when ../shared/data is absent): a change meant to
 //!   make it faster must leave every mask bit as it was.
 //!
+//! - the robustness sweep (`sweep_outcomes.txt`, one line per run of `m2smap sweep`'s two grids: every scene ×
+//!   seeds 1–3 × masks eroded or dilated by 2 px, and × seeds 4–5 × 1 and 3 px): which of the superquadric
+//!   issue's targets each run misses. A change that makes a passing run miss, or a missing one pass, shows here
+//!   by name; the figures themselves are in `make sweep`'s table.
+//!
 //! A one-bit change of the map or snapshot bytes always changes its FNV-1a digest (each step of FNV-1a is a
 //! bijection of the 64-bit state, so two inputs of equal length that differ in one byte never collide);
 //! `a_one_bit_change_of_the_map_bytes_fails_the_comparison` checks it for every bit of a real map.
@@ -397,4 +402,62 @@ fn real_segmentations_match_their_golden_fixture() {
         }
     }
     check_segmenter("real", &lines);
+}
+
+// --- The robustness sweep: which runs miss which targets ----------------------------------------------------------
+
+/// The outcome lines of one sweep grid: `<run>: ok` or `<run>: misses <target>, …`.
+fn sweep_outcomes(out: &std::path::Path, seeds: &[u32], masks: &[&str]) -> Vec<String> {
+    let opts = m2smap::sweep::SweepOptions {
+        out: out.to_path_buf(),
+        scenes: m2smap::synth::SCENES.iter().map(|s| s.to_string()).collect(),
+        seeds: seeds.to_vec(),
+        degradations: masks.iter().map(|m| m.to_string()).collect(),
+        frames: 10,
+        verbose: false,
+    };
+    let runs = m2smap::sweep::sweep(&opts).expect("sweep");
+    runs.iter()
+        .map(|r| {
+            if r.missed.is_empty() {
+                format!("{}: ok", r.name)
+            } else {
+                format!("{}: misses {}", r.name, r.missed.join(", "))
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn sweep_outcomes_are_pinned() {
+    let dir = tempfile::tempdir().unwrap();
+    // The two grids in two threads (each maps its runs one after the other).
+    let (standard, wide) = std::thread::scope(|s| {
+        let a = s.spawn(|| sweep_outcomes(&dir.path().join("standard"), &[1, 2, 3], &["erode2", "dilate2"]));
+        let b =
+            s.spawn(|| sweep_outcomes(&dir.path().join("wide"), &[4, 5], &["erode1", "erode3", "dilate1", "dilate3"]));
+        (a.join().unwrap(), b.join().unwrap())
+    });
+    let lines: Vec<String> = standard.into_iter().chain(wide).collect();
+    let met = lines.iter().filter(|l| l.ends_with(": ok")).count();
+    let got = format!("{met} of {} runs meet every target\n{}\n", lines.len(), lines.join("\n"));
+    let path = fixture_path("sweep_outcomes.txt");
+    if bless() {
+        std::fs::write(&path, &got).unwrap();
+        return;
+    }
+    let want = std::fs::read_to_string(&path).unwrap_or_else(|_| panic!("{path} missing: bless it"));
+    if got != want {
+        let changed: Vec<String> = got
+            .lines()
+            .zip(want.lines())
+            .filter(|(g, w)| g != w)
+            .map(|(g, w)| format!("now {g:?}, pinned {w:?}"))
+            .collect();
+        panic!(
+            "the sweep's outcomes moved ({}); if intended, re-bless with M2SMAP_BLESS=1 and give the figures of \
+             `make sweep` in the commit message",
+            changed.join("; ")
+        );
+    }
 }
