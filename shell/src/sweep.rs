@@ -4,8 +4,8 @@
 //! beyond the project's own frames: different sensor noise and mask errors of a chosen size, not the runs the
 //! tests pin.
 //!
-//! Writes `OUT/sweep.md` (one row per run, the misses marked) and `OUT/sweep.json`; the scenes are made under
-//! `OUT/data/` (reused when already there) and mapped into `OUT/runs/`.
+//! Writes `OUT/sweep.md` (one row per run, the misses marked) and `OUT/sweep.json`; the scenes are made afresh
+//! under `OUT/data/` and mapped into `OUT/runs/`.
 
 use std::fmt::Write as _;
 use std::fs;
@@ -131,7 +131,7 @@ pub struct SweepRun {
     pub missed: Vec<&'static str>,
 }
 
-/// Runs the sweep: makes each scene (when not already under `OUT/data/`), maps it with `full` on the host
+/// Runs the sweep: makes each scene under `OUT/data/` (replacing what is there), maps it with `full` on the host
 /// profile, scores it, and writes `sweep.md` and `sweep.json`. Returns the runs in order (scene, seed,
 /// degradation).
 pub fn sweep(opts: &SweepOptions) -> Result<Vec<SweepRun>> {
@@ -146,10 +146,13 @@ pub fn sweep(opts: &SweepOptions) -> Result<Vec<SweepRun>> {
         for &seed in &opts.seeds {
             for (deg_name, deg) in &named {
                 let name = format!("{scene_name}-{seed}-{deg_name}");
-                let data = opts.out.join("data").join(format!("{name}-{}f", opts.frames));
-                if !data.join("groundtruth.txt").is_file() {
-                    scene.write_tum_degraded(&data, opts.frames, seed, true, deg)?;
+                // Made afresh every time: a scene written by an older build of the generator would be scored
+                // as if it were this one's.
+                let data = opts.out.join("data").join(&name);
+                if data.exists() {
+                    fs::remove_dir_all(&data).with_context(|| format!("{}: cannot replace", data.display()))?;
                 }
+                scene.write_tum_degraded(&data, opts.frames, seed, true, deg)?;
                 let s = run(&RunOptions {
                     dataset: data,
                     out: opts.out.join("runs").join(&name),
