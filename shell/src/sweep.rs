@@ -12,6 +12,7 @@ use std::fs;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use m2smap_core::Variant;
 use serde::Serialize;
 
 use crate::run::{run, ProfileChoice, RunOptions, Summary};
@@ -156,7 +157,7 @@ pub fn sweep(opts: &SweepOptions) -> Result<Vec<SweepRun>> {
                 let s = run(&RunOptions {
                     dataset: data,
                     out: opts.out.join("runs").join(&name),
-                    variant: None,
+                    variant: Some(Variant::Full),
                     frames: Some(opts.frames),
                     config: None,
                     camera: None,
