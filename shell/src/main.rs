@@ -451,8 +451,12 @@ fn execute(cli: Cli) -> Result<()> {
             let opts =
                 sweep::SweepOptions { out: out.clone(), scenes, seeds, degradations: masks, frames, verbose: true };
             let runs = sweep::sweep(&opts)?;
-            let met = runs.iter().filter(|r| r.missed.is_empty()).count();
-            println!("{met} of {} runs meet every target -> {}", runs.len(), out.join("sweep.md").display());
+            println!(
+                "{} of {} runs meet every target -> {}",
+                sweep::met(&runs),
+                runs.len(),
+                out.join("sweep.md").display()
+            );
             Ok(())
         }
         Command::Synth { scene, frames, seed, no_noise, out, mask_erode, mask_dilate, mask_miss, mask_score_noise } => {

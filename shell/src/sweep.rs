@@ -217,9 +217,14 @@ fn row(r: &SweepRun) -> String {
     )
 }
 
-/// `sweep.md`: the targets, how many runs meet all of them, and a row per run.
+/// How many of `runs` meet every target.
+pub fn met(runs: &[SweepRun]) -> usize {
+    runs.iter().filter(|r| r.missed.is_empty()).count()
+}
+
+/// `sweep.md`: the targets, how many runs meet all of them ([`met`]), and a row per run.
 pub fn markdown(runs: &[SweepRun], frames: usize) -> String {
-    let met = runs.iter().filter(|r| r.missed.is_empty()).count();
+    let met = met(runs);
     let mut s = String::new();
     let _ = writeln!(s, "# Robustness sweep ({frames} frames per run, `full`, host profile)\n");
     let _ = writeln!(
