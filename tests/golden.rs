@@ -25,8 +25,9 @@
 //!   real frames of cabinet, ycbv_0000 and redkitchen (skipped when ../shared/data is absent): a change meant to
 //!   make it faster must leave every mask bit as it was.
 //!
-//! - the robustness sweep (`sweep_outcomes.txt`, one line per run of `m2smap sweep`'s two grids: every scene ×
-//!   seeds 1–3 × masks eroded or dilated by 2 px, and × seeds 4–5 × 1 and 3 px): which of the superquadric
+//! - the robustness sweep (`sweep_outcomes.txt`, one line per run of `m2smap sweep`'s three grids: every scene ×
+//!   seeds 1–3 × masks eroded or dilated by 2 px, × seeds 1–5 with perfect masks, and × seeds 4–5 × 1 and 3 px;
+//!   114 runs): which of the superquadric
 //!   issue's targets each run misses. A change that makes a passing run miss, or a missing one pass, shows here
 //!   by name; the figures themselves are in `make sweep`'s table.
 //!
@@ -431,9 +432,13 @@ fn sweep_outcomes(out: &std::path::Path, seeds: &[u32], masks: &[&str]) -> Vec<S
 #[test]
 fn sweep_outcomes_are_pinned() {
     let dir = tempfile::tempdir().unwrap();
-    // The two grids in two threads (each maps its runs one after the other).
+    // The grids in two threads (each maps its runs one after the other).
     let (standard, wide) = std::thread::scope(|s| {
-        let a = s.spawn(|| sweep_outcomes(&dir.path().join("standard"), &[1, 2, 3], &["erode2", "dilate2"]));
+        let a = s.spawn(|| {
+            let mut lines = sweep_outcomes(&dir.path().join("standard"), &[1, 2, 3], &["erode2", "dilate2"]);
+            lines.extend(sweep_outcomes(&dir.path().join("perfect"), &[1, 2, 3, 4, 5], &["perfect"]));
+            lines
+        });
         let b =
             s.spawn(|| sweep_outcomes(&dir.path().join("wide"), &[4, 5], &["erode1", "erode3", "dilate1", "dilate3"]));
         (a.join().unwrap(), b.join().unwrap())
