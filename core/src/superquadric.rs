@@ -521,6 +521,10 @@ pub struct Evidence<'a> {
     /// a pixel of another instance where the shape would continue shows that the shape ends there
     /// (`abuts_other_object`).
     pub masks: Option<(&'a MaskSet<'a>, u16)>,
+    /// The fit points that bound the shape's extent (the extent constraint, its seen and abutting ends), when
+    /// not all of them: the caller leaves out an object's foot on its support (`Mapper`'s support band), where
+    /// an end's bounding point beside the floor cannot tell a neighbour from the floor. `None`: all fit points.
+    pub bounding: Option<&'a [Vec3]>,
 }
 
 /// Free-space probes for an object seen in `frame`: on a [`PROBE_GRID`]² grid of rays over its pixel box
@@ -990,7 +994,7 @@ impl<'a> Problem<'a> {
     fn new(points: &'a [Vec3], evidence: &Evidence<'a>, params: &Params) -> Self {
         Problem {
             points,
-            extent_points: points,
+            extent_points: evidence.bounding.unwrap_or(points),
             evidence: *evidence,
             hidden: hidden_depth(points),
             prior: params.sq_scale_prior,
@@ -2420,6 +2424,30 @@ mod front_view_tests {
         assert!((right - (0.015 - ABUTTING_MARGIN)).abs() < 1e-3, "into the neighbour: {right}");
         let left = excess(&wide, beside, 2, 1, ABUTTING_MARGIN);
         assert!((left - (0.015 - SEEN_END_MARGIN)).abs() < 1e-3, "beside the wall 1 m behind, seen: {left}");
+    }
+
+    /// The points that bound the extent ([`Evidence::bounding`]) replace the fit points in the extent constraint
+    /// only: a fit point beyond them (a box's foot by the floor) no longer holds its end out.
+    #[test]
+    fn the_bounding_points_bound_the_extent() {
+        let (lo, hi, intrinsics, mut points) = seen_top_box();
+        let params = Params::default();
+        // A point 3 cm right of the box's front face at its foot (a floor point a dilated mask lent it).
+        points.push([hi[0] + 0.03, hi[1], 0.8]);
+        let n = points.len();
+        let depth = scene_of(&intrinsics, &[(lo, hi)]);
+        let frame = frame_of(&depth, intrinsics);
+        let wide = box_sq(lo, [hi[0] + 0.05, hi[1], hi[2]]);
+        let end = |bounding: Option<&[Vec3]>| {
+            let evidence = Evidence { view: Some((&frame, &params)), bounding, ..Evidence::default() };
+            let prob = Problem::new(&points, &evidence, &params);
+            assert_eq!(prob.points.len(), n, "the data term keeps every point");
+            extent_excess(&wide, prob.extent_points, prob.hidden, &evidence, OBJECTIVE_ALLOWANCE).metres[0]
+        };
+        let with_foot = end(None);
+        let without = end(points.get(..n - 1));
+        assert_eq!(with_foot, 0.0, "the lent point holds the right end out");
+        assert!(without > 0.01, "without it the end reaches 5 cm past the face: {without}");
     }
 
     /// A mask eroded at the back of a box's top: the fit points stop short of the back edge, and the camera sees
