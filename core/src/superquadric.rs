@@ -833,7 +833,7 @@ fn reaches_along_seen_face(sq: &Superquadric, l: Vec3, k: usize) -> bool {
 /// view, the back 4–5 cm of a box's top), and the end lies where that rim ends. A longer run is something else
 /// (a neighbour flush with the object, its mask missing) and leaves the end unseen, as before the walk. (With
 /// the rim taken as unseen, the far end got the hidden-depth room: the desk scene's tower with masks eroded by
-/// 3 px was fitted 7 cm too deep, 17.3 mm G2R against the true surfaces on seed 4; with the walk 13.6 mm. Without
+/// 3 px was fitted 7 cm too deep, 17.3 mm G2R against the true surfaces on seed 4; with the walk 13.1 mm. Without
 /// the pixel bound a crate walked 3.4 cm into a bin beside it whose mask was missing.) (Judged over a 3 × 3
 /// window instead, the desk tower's back stayed 15 cm too deep on seed 2: 5 cm beyond its last fit point is the
 /// depth shadow 1 pixel beyond the top's edge, whose neighbours are the top itself.)
