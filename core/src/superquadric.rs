@@ -2316,6 +2316,27 @@ mod front_view_tests {
         assert!(behind_occluding_edge(&stepped, &params, 160, 40, z + 0.2, |_, _| true));
     }
 
+    /// Instances 1 (the object) and 2 (a neighbour) over the whole `W × H` image, score 1.
+    const TWO_INSTANCES: [Instance; 2] = [
+        Instance { id: 1, class: 0, score: 1.0, bbox: [0, 0, W as u16 - 1, H as u16 - 1] },
+        Instance { id: 2, class: 0, score: 1.0, bbox: [0, 0, W as u16 - 1, H as u16 - 1] },
+    ];
+
+    /// The id image of `frame`: each pixel's id is `id_of` its observed point (camera frame, metres).
+    fn ids_of(frame: &Frame<'_>, id_of: impl Fn(Vec3) -> u16) -> Vec<u16> {
+        (0..W * H)
+            .map(|i| {
+                let raw = frame.depth.get(i).copied().unwrap_or(0);
+                id_of(frame.intrinsics.unproject((i % W) as f32, (i / W) as f32, frame.metres(raw)))
+            })
+            .collect()
+    }
+
+    /// The masks of [`TWO_INSTANCES`] over the id image `ids`.
+    fn two_instance_masks(ids: &[u16]) -> MaskSet<'_> {
+        MaskSet { width: W as u16, height: H as u16, instances: &TWO_INSTANCES, pixels: MaskPixels::IdImage(ids) }
+    }
+
     /// A 20 cm box at 0.8–1.0 m, 30 cm below the camera (its top is seen 18–21° from edge-on): its corners
     /// `lo`, `hi`, the camera, and its fit points on the front face and the top (not the top's corners).
     fn seen_top_box() -> (Vec3, Vec3, Intrinsics, Vec<Vec3>) {
@@ -2386,24 +2407,16 @@ mod front_view_tests {
             let depth = scene_of(&intrinsics, &[(lo, hi), neighbour]);
             let frame = frame_of(&depth, intrinsics);
             let on = |p: Vec3, (a, b): (Vec3, Vec3)| (0..3).all(|k| p[k] >= a[k] - 2e-3 && p[k] <= b[k] + 2e-3);
-            let ids: Vec<u16> = (0..W * H)
-                .map(|i| {
-                    let p = intrinsics.unproject((i % W) as f32, (i / W) as f32, frame.metres(depth[i]));
-                    if on(p, (lo, hi)) {
-                        1
-                    } else if on(p, neighbour) {
-                        neighbour_id
-                    } else {
-                        0
-                    }
-                })
-                .collect();
-            let instances = [
-                Instance { id: 1, class: 0, score: 1.0, bbox: [0, 0, W as u16 - 1, H as u16 - 1] },
-                Instance { id: 2, class: 0, score: 1.0, bbox: [0, 0, W as u16 - 1, H as u16 - 1] },
-            ];
-            let masks =
-                MaskSet { width: W as u16, height: H as u16, instances: &instances, pixels: MaskPixels::IdImage(&ids) };
+            let ids = ids_of(&frame, |p| {
+                if on(p, (lo, hi)) {
+                    1
+                } else if on(p, neighbour) {
+                    neighbour_id
+                } else {
+                    0
+                }
+            });
+            let masks = two_instance_masks(&ids);
             let evidence = Evidence { view: Some((&frame, &params)), masks: Some((&masks, 1)), ..Evidence::default() };
             extent_excess(sq, &points, hidden, &evidence, Allowance { abutting, ..OBJECTIVE_ALLOWANCE }).metres[end]
         };
@@ -2464,24 +2477,16 @@ mod front_view_tests {
         let far_end = |rim: f32, rim_id: u16| {
             let depth = scene_of(&intrinsics, &[(lo, [hi[0], hi[1], hi[2] + rim])]);
             let frame = frame_of(&depth, intrinsics);
-            let ids: Vec<u16> = (0..W * H)
-                .map(|i| {
-                    let p = intrinsics.unproject((i % W) as f32, (i / W) as f32, frame.metres(depth[i]));
-                    if p[2] > hi[2] + 2e-3 && p[2] < hi[2] + rim + 2e-3 {
-                        rim_id
-                    } else if p[2] < hi[2] + 2e-3 {
-                        1
-                    } else {
-                        0
-                    }
-                })
-                .collect();
-            let instances = [
-                Instance { id: 1, class: 0, score: 1.0, bbox: [0, 0, W as u16 - 1, H as u16 - 1] },
-                Instance { id: 2, class: 0, score: 1.0, bbox: [0, 0, W as u16 - 1, H as u16 - 1] },
-            ];
-            let masks =
-                MaskSet { width: W as u16, height: H as u16, instances: &instances, pixels: MaskPixels::IdImage(&ids) };
+            let ids = ids_of(&frame, |p| {
+                if p[2] > hi[2] + 2e-3 && p[2] < hi[2] + rim + 2e-3 {
+                    rim_id
+                } else if p[2] < hi[2] + 2e-3 {
+                    1
+                } else {
+                    0
+                }
+            });
+            let masks = two_instance_masks(&ids);
             let evidence = Evidence { view: Some((&frame, &params)), masks: Some((&masks, 1)), ..Evidence::default() };
             extent_excess(&deep, &points, hidden, &evidence, OBJECTIVE_ALLOWANCE).metres[4]
         };
