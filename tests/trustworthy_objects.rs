@@ -171,4 +171,28 @@ fn redkitchen_segmenter_objects_stay_on_what_was_seen() {
     let worst = frames.iter().filter_map(|f| f["g2r_rmse_m"].as_f64()).fold(0.0, f64::max);
     assert!(worst <= 0.1, "a frame with G2R {worst}");
     assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.0, "superquadrics per frame {}", s["primitives"]["sq"]);
+
+    // The search budget (default 1 per frame): tracked objects whose warm start failed wait their turn.
+    let count = |frames: &[serde_json::Value], key: &str| -> Vec<u64> {
+        frames.iter().map(|f| f[key].as_u64().unwrap_or_else(|| panic!("frames.jsonl has no {key}"))).collect()
+    };
+    let searches = count(&frames, "sq_tracked_searches");
+    assert!(searches.iter().all(|&n| n <= 1), "tracked searches per frame {searches:?}");
+    assert!(searches.iter().sum::<u64>() > 0, "no tracked object was ever searched again");
+    let deferred: u64 = count(&frames, "sq_deferred").iter().sum();
+    assert!(deferred > 0, "the budget never held a search back on redkitchen");
+    // Without it (a budget no frame reaches), nothing waits and frames run several tracked searches.
+    let config = dir.path().join("unbounded.json");
+    fs::write(&config, r#"{"sq_search_budget": 1000}"#).unwrap();
+    let open = dir.path().join("unbounded");
+    let args = ["--segmenter", "geometric", "--frames", "120", "--config", config.to_str().unwrap()];
+    run_ok(&data, &open, &args);
+    let unbounded: Vec<serde_json::Value> = fs::read_to_string(open.join("frames.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(count(&unbounded, "sq_deferred").iter().sum::<u64>(), 0);
+    let most = count(&unbounded, "sq_tracked_searches").into_iter().max().unwrap_or(0);
+    assert!(most > 1, "without the budget at most {most} tracked searches in a frame");
 }

@@ -116,9 +116,15 @@ pub struct FrameReport {
     pub gmms: u32,
     /// Objects whose fit was rejected (they keep their Gaussians).
     pub sq_rejected: u32,
-    /// Objects without a track whose cold search was skipped because it was refused in the previous frame
-    /// (`track::Refusal`; they keep their Gaussians, not counted in `sq_rejected`).
+    /// Objects without an acceptable fit whose cold search was skipped: refused in the previous frame
+    /// (`track::Refusal`) or over the frame's search budget (`sq_deferred`); they keep their Gaussians (or their
+    /// track's held state, then counted in `sq_held`), not counted in `sq_rejected`.
     pub sq_skipped: u32,
+    /// Tracked objects whose cold search (after a warm start that was not acceptable, or a due re-search) waited
+    /// for a later frame, this frame's search budget spent (`Params::sq_search_budget`).
+    pub sq_deferred: u32,
+    /// Cold searches run this frame for tracked objects (at most `Params::sq_search_budget`).
+    pub sq_tracked_searches: u32,
     /// Objects whose fit this frame was not acceptable but whose track state is consistent with the frame (the
     /// map shows the track's state; counted in `sqs`).
     pub sq_held: u32,
@@ -204,6 +210,8 @@ pub struct Mapper<'s> {
     tracker: Tracker<'s>,
     sq_points: &'s mut [Vec3],
     sq_points_peak: usize,
+    /// Cold searches of objects seen before left in this frame (`Params::sq_search_budget`).
+    searches_left: u32,
     /// Voxelisation's list of the frame's sampled points ([`supervoxel::SampledPoint`]).
     sampled: Bounded<'s, supervoxel::SampledPoint>,
     /// Whether `sampled` lists every sampled point of the current frame over its depth range.
@@ -250,6 +258,7 @@ impl<'s> Mapper<'s> {
             tracker: Tracker::new(Bounded::new(parts.tracks)),
             sq_points: parts.sq_points,
             sq_points_peak: 0,
+            searches_left: 0,
             sampled: Bounded::new(parts.sampled),
             sampled_complete: false,
             sampled_from: (0, 0),
@@ -645,6 +654,7 @@ impl<'s> Mapper<'s> {
     pub fn stage_superquadrics(&mut self, checked: &CheckedFrame<'_>) {
         let params = self.params;
         self.sq_points_peak = 0;
+        self.searches_left = params.sq_search_budget;
         if !params.variant.superquadrics() {
             return;
         }
@@ -734,6 +744,7 @@ impl<'s> Mapper<'s> {
         let Some(object) = self.objects.get(k).copied() else { return };
         let mut state = SQ_NONE;
         let mut skipped = false;
+        let mut deferred = false;
         let mut sq = Superquadric::default_shape();
         let mut error = 0.0;
         let mut track = 0;
@@ -828,12 +839,22 @@ impl<'s> Mapper<'s> {
                 && own.and_then(|i| self.tracker.tracks.get(i)).is_some_and(|t| {
                     t.updates % RESEARCH_FIRST_UPDATE == 0 && (t.updates / RESEARCH_FIRST_UPDATE).is_power_of_two()
                 });
-            // One call of the cold search (a second would double its frame on the Cortex-M7's stack).
-            let cold = if !skipped && (warm.is_none() || research) {
-                superquadric::fit(points, &frame, &evidence, &params)
-            } else {
-                None
-            };
+            // The search budget (`Params::sq_search_budget`): a tracked object's cold search takes one search of
+            // this frame's budget; over it, the search waits for a later frame (the track's held state or the
+            // Gaussians show the object meanwhile). Objects without a track are searched (or skipped by their
+            // refusal) as before.
+            let mut search = !skipped && (warm.is_none() || research);
+            if search && own.is_some() {
+                if self.searches_left == 0 {
+                    search = false;
+                    deferred = true;
+                    skipped = warm.is_none();
+                } else {
+                    self.searches_left -= 1;
+                    self.report.sq_tracked_searches += 1;
+                }
+            }
+            let cold = if search { superquadric::fit(points, &frame, &evidence, &params) } else { None };
             // A re-search's fit wins when it is clearly better and turned no further than the track allows
             // (equivalent axes aligned as the track aligns them).
             let wins = |w: &superquadric::Fit, c: &superquadric::Fit| {
@@ -896,6 +917,9 @@ impl<'s> Mapper<'s> {
                     self.report.sq_held += 1;
                 }
             }
+        }
+        if deferred {
+            self.report.sq_deferred += 1;
         }
         match state {
             SQ_ACCEPTED => self.report.sqs += 1,

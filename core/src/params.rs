@@ -240,6 +240,12 @@ pub struct Params {
     /// superquadric samples in free space; with 1.3: 1.1 %). 1.3 keeps rounded shapes (ε = 1: ellipses,
     /// cylinders) inside the bounds, so LM is not pinned at the bound there.
     pub sq_eps_max: f32,
+    /// Most cold superquadric searches per frame for objects that have a track: its warm start was not
+    /// acceptable, or its re-search is due (an m2smap decision, bounding the stage's time per frame; see
+    /// `mapper`). Over the budget, such an object shows its track's state when this frame accepts it, else its
+    /// Gaussians, and is searched in a later frame. Objects without a track are not rationed here (a refused one
+    /// is retried every `track::REFUSAL_RETRY_FRAMES`-th frame).
+    pub sq_search_budget: u32,
 
     // --- 10. tracks ---------------------------------------------------------------------------------------
     /// Largest centre distance for association d_max, metres (paper: 0.35).
@@ -318,6 +324,7 @@ impl Default for Params {
             lm_samples: crate::superquadric::BATCHED_SAMPLES as u32,
             sq_scale_prior: 1e-4,
             sq_eps_max: 1.3,
+            sq_search_budget: 1,
             sq_max_rms: 0.02,
             d_max: 0.35,
             alpha_c: 0.6,

@@ -987,6 +987,8 @@ struct Problem<'a> {
     /// differences for the shape, the better measure of a fit (measured: ranking and finishing both with the
     /// metric distance cost 2× more for the same accuracy on the random-shape test).
     radial: bool,
+    /// [`robust_box`] of `points` (of all fit points, also in a screening problem), for [`accepts`].
+    support_box: (Vec3, Vec3),
 }
 
 impl<'a> Problem<'a> {
@@ -1000,6 +1002,7 @@ impl<'a> Problem<'a> {
             prior: params.sq_scale_prior,
             radial: false,
             extra: &[],
+            support_box: robust_box(points),
         }
     }
 }
@@ -1146,15 +1149,17 @@ fn same_run(a: &Run, b: &Run) -> bool {
         && same_rotation(&a.base, &b.base)
 }
 
-/// Percentile (0–1) of a small sample, by sorting a copy.
+/// Percentile (0–1) of a small sample (the value a full sort would put at that rank, found by selection; the
+/// sample is reordered).
 fn percentile(values: &mut [f32], q: f32) -> f32 {
-    values.sort_unstable_by(f32::total_cmp);
     let n = values.len();
     if n == 0 {
         return 0.0;
     }
-    let i = libm::roundf(q * (n - 1) as f32) as usize;
-    values.get(i.min(n - 1)).copied().unwrap_or(0.0)
+    let i = (libm::roundf(q * (n - 1) as f32) as usize).min(n - 1);
+    // The i-th smallest value (as a full sort would place it), by selection: the values are reordered.
+    let (_, nth, _) = values.select_nth_unstable_by(i, f32::total_cmp);
+    *nth
 }
 
 /// The half-extent (at least [`MIN_SCALE`]) and the middle of `points` along the unit direction `dir` about
@@ -1950,7 +1955,7 @@ pub fn is_consistent(sq: &Superquadric, points: &[Vec3], evidence: &Evidence<'_>
 fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params, seen: Option<FrontView>) -> bool {
     let fit = Fit { sq: *sq, error, iterations: 0, accepted: false };
     let points = prob.points;
-    let (bbox_min, bbox_max) = robust_box(points);
+    let (bbox_min, bbox_max) = prob.support_box;
     let half_diag = 0.5 * linalg::norm(linalg::sub(bbox_max, bbox_min));
     let grow = [half_diag; 3];
     let (lo, hi) = (linalg::sub(bbox_min, grow), linalg::add(bbox_max, grow));

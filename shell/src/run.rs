@@ -137,6 +137,10 @@ pub struct FrameRecord {
     pub sq_rejected: u32,
     /// Objects without a track whose cold search was skipped: refused in the previous frame (core `Refusal`).
     pub sq_skipped: u32,
+    /// Cold searches of objects seen before that waited for a later frame (core `Params::sq_search_budget`).
+    pub sq_deferred: u32,
+    /// Cold searches run for tracked objects (at most core `Params::sq_search_budget`).
+    pub sq_tracked_searches: u32,
     /// Objects shown by their track's state because this frame's fit was not acceptable.
     pub sq_held: u32,
     /// Live superquadric tracks.
@@ -758,6 +762,8 @@ fn replay<P: Profile + Zeroable>(
                 detached_gaussians: report.detached_gaussians,
                 sq_rejected: report.sq_rejected,
                 sq_skipped: report.sq_skipped,
+                sq_deferred: report.sq_deferred,
+                sq_tracked_searches: report.sq_tracked_searches,
                 sq_held: report.sq_held,
                 tracks: report.tracks,
                 new_tracks: report.new_tracks,
