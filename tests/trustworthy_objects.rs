@@ -18,6 +18,11 @@ fn synth(dir: &Path, scene: &str, seed: &str, extra: &[&str]) -> std::path::Path
     out
 }
 
+/// The lines of a run's `frames.jsonl` in `dir`.
+fn frame_lines(dir: &Path) -> Vec<serde_json::Value> {
+    fs::read_to_string(dir.join("frames.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+}
+
 fn metric(s: &serde_json::Value, key: &str) -> f64 {
     s[key].as_f64().unwrap_or_else(|| panic!("summary.json has no number {key}: {}", s[key]))
 }
@@ -124,10 +129,8 @@ fn ycbv_superquadrics_respect_free_space_and_the_table() {
     assert!(metric(&s, "sq_sizes_scored") >= 10.0, "superquadrics scored for size: {}", s["sq_sizes_scored"]);
     assert!(metric(&s, "sq_sizes_within_tolerance") >= 0.9, "sizes within 15 %: {}", s["sq_sizes_within_tolerance"]);
     assert!(metric(&s, "sq_size_error_max") <= 0.17, "worst size error {}", s["sq_size_error_max"]);
-    let frames = std::fs::read_to_string(dir.path().join("frames.jsonl")).unwrap();
-    let labels: std::collections::BTreeSet<String> = frames
-        .lines()
-        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+    let labels: std::collections::BTreeSet<String> = frame_lines(dir.path())
+        .iter()
         .flat_map(|f| {
             f["sq_sizes"]
                 .as_array()
@@ -163,11 +166,7 @@ fn redkitchen_segmenter_objects_stay_on_what_was_seen() {
     let dir = tempfile::tempdir().unwrap();
     let s = run_ok(&data, dir.path(), &["--segmenter", "geometric", "--frames", "120"]);
     assert!(metric(&s, "g2r_rmse_m") <= 0.03, "G2R {}", s["g2r_rmse_m"]);
-    let frames: Vec<serde_json::Value> = fs::read_to_string(dir.path().join("frames.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let frames = frame_lines(dir.path());
     let worst = frames.iter().filter_map(|f| f["g2r_rmse_m"].as_f64()).fold(0.0, f64::max);
     assert!(worst <= 0.1, "a frame with G2R {worst}");
     assert!(s["primitives"]["sq"].as_f64().unwrap() >= 1.0, "superquadrics per frame {}", s["primitives"]["sq"]);
@@ -187,11 +186,7 @@ fn redkitchen_segmenter_objects_stay_on_what_was_seen() {
     let open = dir.path().join("unbounded");
     let args = ["--segmenter", "geometric", "--frames", "120", "--config", config.to_str().unwrap()];
     run_ok(&data, &open, &args);
-    let unbounded: Vec<serde_json::Value> = fs::read_to_string(open.join("frames.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let unbounded = frame_lines(&open);
     assert_eq!(count(&unbounded, "sq_deferred").iter().sum::<u64>(), 0);
     let most = count(&unbounded, "sq_tracked_searches").into_iter().max().unwrap_or(0);
     assert!(most > 1, "without the budget at most {most} tracked searches in a frame");

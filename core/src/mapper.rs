@@ -210,7 +210,7 @@ pub struct Mapper<'s> {
     tracker: Tracker<'s>,
     sq_points: &'s mut [Vec3],
     sq_points_peak: usize,
-    /// Cold searches of objects seen before left in this frame (`Params::sq_search_budget`).
+    /// Cold searches of tracked objects left in this frame (`Params::sq_search_budget`).
     searches_left: u32,
     /// Voxelisation's list of the frame's sampled points ([`supervoxel::SampledPoint`]).
     sampled: Bounded<'s, supervoxel::SampledPoint>,
@@ -854,6 +854,7 @@ impl<'s> Mapper<'s> {
                     self.report.sq_tracked_searches += 1;
                 }
             }
+            // One call of the cold search (a second would double its frame on the Cortex-M7's stack).
             let cold = if search { superquadric::fit(points, &frame, &evidence, &params) } else { None };
             // A re-search's fit wins when it is clearly better and turned no further than the track allows
             // (equivalent axes aligned as the track aligns them).

@@ -135,9 +135,10 @@ pub struct FrameRecord {
     pub detached_gaussians: u32,
     /// Objects whose superquadric fit was rejected.
     pub sq_rejected: u32,
-    /// Objects without a track whose cold search was skipped: refused in the previous frame (core `Refusal`).
+    /// Objects without an acceptable fit whose cold search was skipped: refused in the previous frame (core
+    /// `Refusal`) or over the frame's search budget.
     pub sq_skipped: u32,
-    /// Cold searches of objects seen before that waited for a later frame (core `Params::sq_search_budget`).
+    /// Tracked objects whose cold search waited for a later frame (core `Params::sq_search_budget`).
     pub sq_deferred: u32,
     /// Cold searches run for tracked objects (at most core `Params::sq_search_budget`).
     pub sq_tracked_searches: u32,
