@@ -916,6 +916,11 @@ impl<'s> Mapper<'s> {
                     sq = q;
                     track = id;
                     self.report.sq_held += 1;
+                    // Seen as it was: the track stays alive (a track that only holds would otherwise retire after
+                    // `track_max_missed` frames and its object start a new one, see `Tracker::hold`).
+                    if let Some(i) = own {
+                        self.tracker.hold(i);
+                    }
                 }
             }
         }

@@ -29,7 +29,8 @@ pub struct Track {
     pub id: u16,
     /// Category label ℓ.
     pub class: u16,
-    /// Frame number of the last update.
+    /// Frame number of the last update, or of the last frame that accepted the track's state as it was
+    /// ([`Tracker::hold`]).
     pub last_frame: u32,
     /// Updates so far (the first measurement included).
     pub updates: u32,
@@ -236,6 +237,16 @@ impl<'a> Tracker<'a> {
         true
     }
 
+    /// Marks track `index` as seen this frame without a measurement: its state passed this frame's acceptance
+    /// test and stands for the object (the map's held state). The state and the update count stay as they
+    /// were; the track is not retired while the frames keep accepting it.
+    pub fn hold(&mut self, index: usize) {
+        let frame = self.frame;
+        if let Some(t) = self.tracks.as_mut_slice().get_mut(index) {
+            t.last_frame = frame;
+        }
+    }
+
     /// Records that the cold search for an object at `centre` with label `class` found no acceptable shape.
     pub fn refuse(&mut self, centre: Vec3, class: u16, params: &Params) {
         let frame = self.frame;
@@ -289,7 +300,7 @@ impl<'a> Tracker<'a> {
     }
 
     /// Equations 14–15: the nearest track of label `class` within `d_max` of `centre` that has not been
-    /// updated in this frame.
+    /// updated (or held, [`Tracker::hold`]) in this frame.
     pub fn nearest(&self, centre: Vec3, class: u16, params: &Params) -> Option<usize> {
         let open =
             self.tracks.as_slice().iter().enumerate().filter(|(_, t)| t.class == class && t.last_frame != self.frame);
@@ -377,6 +388,36 @@ mod tests {
         tracker.forget_refusal(here, class, &params);
         tracker.begin_frame(&params);
         assert!(!tracker.skips_search(here, class, &params));
+    }
+
+    /// A track whose state the frames keep accepting without a new fit (held) stays alive past
+    /// `track_max_missed` with its state and update count as they were, and is taken for that frame; one that is
+    /// neither updated nor held retires.
+    #[test]
+    fn a_held_track_stays_alive_and_unchanged() {
+        let params = Params::default();
+        let mut storage = [Track::zeroed(); 2];
+        let mut tracker = Tracker::new(Bounded::new(&mut storage));
+        let sq = Superquadric { centre: [0.3, 0.0, 2.0], ..Superquadric::default_shape() };
+        let (class, other) = (3, 4);
+        tracker.begin_frame(&params);
+        assert!(tracker.update(&sq, class, &params, true).new);
+        let far = Superquadric { centre: [-0.6, 0.0, 2.5], ..sq };
+        assert!(tracker.update(&far, other, &params, true).new);
+        let before = tracker.tracks.as_slice().first().copied();
+        for _ in 0..params.track_max_missed + 5 {
+            tracker.begin_frame(&params);
+            let i = tracker.nearest(sq.centre, class, &params);
+            assert_eq!(i, Some(0), "the held track is still there");
+            tracker.hold(0);
+            // Held this frame: not open to another measurement of the same frame.
+            assert_eq!(tracker.nearest(sq.centre, class, &params), None);
+        }
+        let after = tracker.tracks.as_slice().first().copied();
+        assert_eq!(after.map(|t| (t.sq, t.updates, t.id)), before.map(|t| (t.sq, t.updates, t.id)));
+        // The other track was neither updated nor held: retired.
+        assert_eq!(tracker.tracks.len(), 1);
+        assert_eq!(tracker.nearest(far.centre, other, &params), None);
     }
 
     /// A full track pool refuses a new track in the frame it happens; the next frame's report starts at 0
