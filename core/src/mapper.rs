@@ -210,8 +210,6 @@ pub struct Mapper<'s> {
     tracker: Tracker<'s>,
     sq_points: &'s mut [Vec3],
     sq_points_peak: usize,
-    /// Cold searches of tracked objects left in this frame (`Params::sq_search_budget`).
-    searches_left: u32,
     /// Voxelisation's list of the frame's sampled points ([`supervoxel::SampledPoint`]).
     sampled: Bounded<'s, supervoxel::SampledPoint>,
     /// Whether `sampled` lists every sampled point of the current frame over its depth range.
@@ -258,7 +256,6 @@ impl<'s> Mapper<'s> {
             tracker: Tracker::new(Bounded::new(parts.tracks)),
             sq_points: parts.sq_points,
             sq_points_peak: 0,
-            searches_left: 0,
             sampled: Bounded::new(parts.sampled),
             sampled_complete: false,
             sampled_from: (0, 0),
@@ -654,7 +651,6 @@ impl<'s> Mapper<'s> {
     pub fn stage_superquadrics(&mut self, checked: &CheckedFrame<'_>) {
         let params = self.params;
         self.sq_points_peak = 0;
-        self.searches_left = params.sq_search_budget;
         if !params.variant.superquadrics() {
             return;
         }
@@ -845,12 +841,11 @@ impl<'s> Mapper<'s> {
             // refusal) as before.
             let mut search = !skipped && (warm.is_none() || research);
             if search && own.is_some() {
-                if self.searches_left == 0 {
+                if self.report.sq_tracked_searches >= params.sq_search_budget {
                     search = false;
                     deferred = true;
                     skipped = warm.is_none();
                 } else {
-                    self.searches_left -= 1;
                     self.report.sq_tracked_searches += 1;
                 }
             }
