@@ -778,6 +778,18 @@ impl<'s> Mapper<'s> {
             let patches = if params.variant.geometric_objects() { &[] } else { patches };
             let n_supports =
                 support_planes(self.planes.as_slice(), patches, object.instance, points, params.g_p, &mut supports);
+            // Points a mask lent the object from the support it rests on (a mask reaching past a slab's edge
+            // onto the floor) leave the fit: see `on_own_footprint`. Objects by geometry (MMQ) have no mask.
+            let masks = checked.masks.as_ref().filter(|_| !params.variant.geometric_objects());
+            let mask_slot = masks.and_then(|m| m.instances.iter().position(|i| i.id == object.instance));
+            let on_mask_rim = |p: Vec3| match (masks, mask_slot, superquadric::pixel_of(&checked.frame, p)) {
+                (Some(m), Some(slot), Some([u, v])) => near_mask_edge(m, slot, u, v),
+                _ => false,
+            };
+            let n = match self.sq_points.get_mut(offset..offset + n) {
+                Some(all) => on_own_footprint(all, supports.get(..n_supports).unwrap_or(&[]), &params, on_mask_rim),
+                None => n,
+            };
             let n_bounding = match self.sq_points.get_mut(offset..offset + n) {
                 Some(all) => off_supports(all, supports.get(..n_supports).unwrap_or(&[]), &params),
                 None => n,
@@ -1258,9 +1270,15 @@ fn off_supports(points: &mut [Vec3], supports: &[superquadric::HalfSpace], param
     if 2 * kept < points.len() {
         return points.len();
     }
+    keep_first(points, |p| !on(p))
+}
+
+/// Moves the points that `keep` accepts to the front of `points`, in their order, and returns how many there are
+/// (the others follow, in their order).
+fn keep_first(points: &mut [Vec3], keep: impl Fn(Vec3) -> bool) -> usize {
     let mut next = 0;
     for i in 0..points.len() {
-        if points.get(i).is_some_and(|&p| !on(p)) {
+        if points.get(i).is_some_and(|&p| keep(p)) {
             if let Some(run) = points.get_mut(next..=i) {
                 run.rotate_right(1);
             }
@@ -1268,6 +1286,116 @@ fn off_supports(points: &mut [Vec3], supports: &[superquadric::HalfSpace], param
         }
     }
     next
+}
+
+/// How close to the edge of its own mask a pixel lies for [`on_own_footprint`] to take it for one a mask lent its
+/// object, pixels: the sweeps' masks reach up to 3 px past the objects' silhouettes (`m2smap sweep`, `dilate3`).
+const LENT_RIM_PX: i32 = 3;
+
+/// Whether pixel (`u`, `v`) lies within [`LENT_RIM_PX`] of the edge of mask `slot` of `masks`: a pixel of the
+/// window about it is outside the mask or the image.
+fn near_mask_edge(masks: &crate::MaskSet<'_>, slot: usize, u: i32, v: i32) -> bool {
+    let r = LENT_RIM_PX;
+    (v - r..=v + r).any(|y| {
+        (u - r..=u + r).any(|x| {
+            let inside = (0..i32::from(masks.width)).contains(&x) && (0..i32::from(masks.height)).contains(&y);
+            !inside || !masks.contains(slot, x as u16, y as u16)
+        })
+    })
+}
+
+/// The footprint of an object's points above a support ([`on_own_footprint`]): their principal axes in the
+/// support's plane and their extents along them (camera frame, metres).
+#[derive(Clone, Copy)]
+struct Footprint {
+    mean: Vec3,
+    axes: [Vec3; 2],
+    lo: [f32; 2],
+    hi: [f32; 2],
+}
+
+/// Least points above the supports that give an object a footprint ([`on_own_footprint`]).
+const FOOTPRINT_MIN_POINTS: usize = 8;
+
+/// Moves to the end of an object's fit points (and returns how many stay in front) the points that its mask,
+/// reaching past the object's silhouette, lent it from a support it rests on: points on the rim of the mask
+/// (`on_mask_rim`, [`near_mask_edge`]) low over a support the camera sees from the object's side (a floor, a
+/// table top) that lie outside the footprint of the object's points above every support — their principal axes
+/// in the support's plane and their extents along them — by more than the band. A point is low below the band
+/// height min(depth tolerance, half the object's height over the support): a slab 3 cm thick on the floor, 2 m
+/// away, lies mostly within the 2 cm depth tolerance, and its top, not its noise, is above half its height. A
+/// face sloping out by up to 45° reaches at most that height beyond the footprint above it, so an object's own
+/// foot stays, and so do the feet of a table on legs (under its top). A support seen from behind (a neighbour's
+/// face whose plane the object's own face continues, as a crate's front beside a cabinet's) bounds nothing
+/// here, and neither does a flat part inside a mask (a segmenter instance's patch of counter): only the mask's
+/// rim is suspect.
+///
+/// Why: the data term keeps every fit point, and a mask dilated by 2–3 px onto the floor around a laptop-thin
+/// slab (the shelf scene's) stretched its superquadric over the floor by 4–7 cm on every side, 10–25 % of its
+/// samples there (map-level adhesion 0.5–0.9 per frame). Measured: docs/pipeline.md, stage 9.
+fn on_own_footprint(
+    points: &mut [Vec3],
+    supports: &[superquadric::HalfSpace],
+    params: &Params,
+    on_mask_rim: impl Fn(Vec3) -> bool,
+) -> usize {
+    let height = |h: &superquadric::HalfSpace, p: Vec3| linalg::dot(h.normal, p) - h.offset;
+    // Per support: the band height's cap (half the object's height over it), or none for a support the camera
+    // sees from behind.
+    let mut caps = [None; superquadric::MAX_SUPPORTS];
+    for (cap, h) in caps.iter_mut().zip(supports) {
+        if height(h, [0.0; 3]) > 0.0 {
+            *cap = Some(0.5 * points.iter().map(|&p| height(h, p)).fold(0.0, f32::max));
+        }
+    }
+    let band = |k: usize, p: Vec3| caps.get(k).copied().flatten().map(|c| params.depth_tolerance(p[2]).min(c));
+    let low = |k: usize, h: &superquadric::HalfSpace, p: Vec3| band(k, p).is_some_and(|b| height(h, p) < b);
+    let above = |p: Vec3| supports.iter().enumerate().all(|(k, h)| !low(k, h, p));
+    let n_above = points.iter().filter(|&&p| above(p)).count();
+    if n_above < FOOTPRINT_MIN_POINTS || n_above == points.len() {
+        return points.len();
+    }
+    // The footprint of the points above in each support's plane (the points projected onto it).
+    let mut footprints: [Option<Footprint>; superquadric::MAX_SUPPORTS] = [None; superquadric::MAX_SUPPORTS];
+    for ((footprint, h), cap) in footprints.iter_mut().zip(supports).zip(&caps) {
+        if cap.is_none() {
+            continue;
+        }
+        let onto = |p: Vec3| linalg::sub(p, linalg::scale(h.normal, height(h, p)));
+        let mut moments: Option<linalg::Moments> = None;
+        for &p in points.iter().filter(|&&p| above(p)) {
+            moments.get_or_insert_with(|| linalg::Moments::about(onto(p))).add(onto(p), 1.0);
+        }
+        let Some(moments) = moments else { continue };
+        let eigen = linalg::sym_eigen(moments.covariance());
+        let mut f = Footprint {
+            mean: moments.mean(),
+            axes: [eigen.vectors[0], eigen.vectors[1]],
+            lo: [f32::MAX; 2],
+            hi: [f32::MIN; 2],
+        };
+        for &p in points.iter().filter(|&&p| above(p)) {
+            for k in 0..2 {
+                if let (Some(axis), Some(lo), Some(hi)) = (f.axes.get(k), f.lo.get_mut(k), f.hi.get_mut(k)) {
+                    let t = linalg::dot(*axis, linalg::sub(p, f.mean));
+                    *lo = lo.min(t);
+                    *hi = hi.max(t);
+                }
+            }
+        }
+        *footprint = Some(f);
+    }
+    let outside = |p: Vec3| {
+        supports.iter().zip(&footprints).enumerate().any(|(k, (h, f))| {
+            let (Some(f), Some(margin)) = (f, band(k, p)) else { return false };
+            height(h, p) < margin
+                && f.axes.iter().zip(f.lo.iter().zip(&f.hi)).any(|(axis, (&lo, &hi))| {
+                    let t = linalg::dot(*axis, linalg::sub(p, f.mean));
+                    t < lo - margin || t > hi + margin
+                })
+        })
+    };
+    keep_first(points, |p| !(outside(p) && on_mask_rim(p)))
 }
 
 /// How many depth-tolerance bands tall above a support an object must stand for [`off_supports`] to leave its
@@ -1404,5 +1532,132 @@ mod support_band_tests {
         // No support: nothing to leave out.
         let (_, mut points) = box_on_floor(0.4);
         assert_eq!(off_supports(&mut points, &[], &params), points.len());
+    }
+
+    /// A slab 30 × 20 cm, 3 cm thick, on the floor of [`box_on_floor`] 2 m away: its top, its front side (three
+    /// rows, 0.5–2.5 cm up) and, when `lent`, a ring of floor 5 cm around it that a dilated mask lent it and one
+    /// floor point 1 cm beyond its side (within the band: its own foot, as far as the fit can tell).
+    fn slab_on_floor(lent: bool) -> (std::vec::Vec<Vec3>, std::vec::Vec<Vec3>) {
+        let mut slab = std::vec::Vec::new();
+        for i in 0..7 {
+            for k in 0..5 {
+                slab.push([-0.15 + 0.05 * i as f32, 2.0 - 0.03, 1.9 + 0.05 * k as f32]);
+            }
+        }
+        for up in [0.005, 0.015, 0.025] {
+            for i in 0..7 {
+                slab.push([-0.15 + 0.05 * i as f32, 2.0 - up, 1.9]);
+            }
+        }
+        let mut floor = std::vec::Vec::new();
+        if lent {
+            for k in 0..5 {
+                floor.push([-0.2, 2.0, 1.9 + 0.05 * k as f32]);
+                floor.push([0.2, 2.0, 1.9 + 0.05 * k as f32]);
+            }
+            for i in 0..7 {
+                floor.push([-0.15 + 0.05 * i as f32, 2.0, 1.85]);
+                floor.push([-0.15 + 0.05 * i as f32, 2.0, 2.15]);
+            }
+            slab.push([0.16, 2.0, 2.0]);
+        }
+        (slab, floor)
+    }
+
+    /// The floor of [`box_on_floor`] as a support.
+    const FLOOR: superquadric::HalfSpace = superquadric::HalfSpace { normal: [0.0, -1.0, 0.0], offset: -2.0 };
+
+    #[test]
+    fn the_floor_a_mask_lent_a_slab_leaves_its_fit() {
+        let params = Params::default();
+        let (slab, lent) = slab_on_floor(true);
+        // The floor's points interleaved with the slab's, as a mask's pixels come.
+        let mut points: std::vec::Vec<Vec3> = std::vec::Vec::new();
+        let mut rest = lent.iter();
+        for p in &slab {
+            points.push(*p);
+            if let Some(q) = rest.next() {
+                points.push(*q);
+            }
+        }
+        points.extend(rest);
+        let before = points.clone();
+        // Every point on the mask's rim: the ring goes; the slab's top, side and foot stay.
+        let kept = on_own_footprint(&mut points, &[FLOOR], &params, |_| true);
+        assert_eq!(kept, slab.len(), "the slab's points, its side and its foot stay; the ring goes");
+        assert_eq!(&points[..kept], &slab[..], "in their order");
+        let mut gone = points[kept..].to_vec();
+        let mut want = lent.clone();
+        let key = |p: &Vec3| (p[0].to_bits(), p[1].to_bits(), p[2].to_bits());
+        gone.sort_by_key(key);
+        want.sort_by_key(key);
+        assert_eq!(gone, want, "no point lost");
+        // Only the mask's rim is suspect: the ring's far part (z ≥ 2.1 m) off the rim stays.
+        let mut points = before.clone();
+        let kept = on_own_footprint(&mut points, &[FLOOR], &params, |p| p[2] < 2.1);
+        let far = lent.iter().filter(|p| p[2] >= 2.1).count();
+        assert_eq!(far, 9);
+        assert_eq!(kept, slab.len() + far);
+        assert!(points[kept..].iter().all(|p| p[2] < 2.1 && lent.contains(p)));
+        // Nothing on the rim (no mask, or the ring inside it): every point stays.
+        let mut points = before.clone();
+        assert_eq!(on_own_footprint(&mut points, &[FLOOR], &params, |_| false), points.len());
+        assert_eq!(points, before);
+        // A slab without lent floor keeps every point.
+        let (mut own, _) = slab_on_floor(false);
+        let alone = own.clone();
+        assert_eq!(on_own_footprint(&mut own, &[FLOOR], &params, |_| true), own.len());
+        assert_eq!(own, alone);
+    }
+
+    #[test]
+    fn a_support_seen_from_behind_or_too_few_points_above_bound_nothing() {
+        let params = Params::default();
+        // A crate's front face at z = 2 m continuing a neighbour's front (the plane, its normal away from the
+        // camera) and its top going back 40 cm: the front lies on the plane, below any band, outside the top's
+        // footprint on it, and stays.
+        let behind = [superquadric::HalfSpace { normal: [0.0, 0.0, 1.0], offset: 2.0 }];
+        let mut crate_points = std::vec::Vec::new();
+        for i in 0..5 {
+            for j in 0..5 {
+                crate_points.push([-0.2 + 0.1 * i as f32, 0.6 + 0.1 * j as f32, 2.0]);
+                crate_points.push([-0.2 + 0.1 * i as f32, 0.6, 2.0 + 0.1 * j as f32]);
+            }
+        }
+        let before = crate_points.clone();
+        assert_eq!(on_own_footprint(&mut crate_points, &behind, &params, |_| true), crate_points.len());
+        assert_eq!(crate_points, before);
+        // Fewer than FOOTPRINT_MIN_POINTS above the floor: no footprint, every point stays.
+        let (slab, lent) = slab_on_floor(true);
+        let mut few: std::vec::Vec<Vec3> = slab.iter().take(FOOTPRINT_MIN_POINTS - 1).chain(&lent).copied().collect();
+        assert_eq!(on_own_footprint(&mut few, &[FLOOR], &params, |_| true), few.len());
+        // No support: nothing to leave out.
+        let mut all: std::vec::Vec<Vec3> = slab.iter().chain(&lent).copied().collect();
+        assert_eq!(on_own_footprint(&mut all, &[], &params, |_| true), all.len());
+    }
+
+    #[test]
+    fn a_pixel_near_its_mask_edge_is_on_the_rim() {
+        // A 20 × 20 image with one instance covering columns 5..15 and rows 5..15.
+        let mut ids = [0u16; 400];
+        for v in 5..15 {
+            for u in 5..15 {
+                ids[v * 20 + u] = 7;
+            }
+        }
+        let instances = [crate::Instance { id: 7, class: 1, score: 1.0, bbox: [5, 5, 14, 14] }];
+        let masks =
+            crate::MaskSet { width: 20, height: 20, instances: &instances, pixels: crate::MaskPixels::IdImage(&ids) };
+        assert!(!near_mask_edge(&masks, 0, 10, 10), "4 px or more from every pixel outside");
+        assert!(!near_mask_edge(&masks, 0, 8, 10), "4 px from column 4, the first outside");
+        assert!(near_mask_edge(&masks, 0, 7, 10), "3 px from column 4");
+        assert!(near_mask_edge(&masks, 0, 10, 12), "3 px from row 15, the first outside below");
+        assert!(near_mask_edge(&masks, 0, 2, 2), "outside the mask");
+        // A mask reaching the image border: the border is an edge.
+        let full = [7u16; 400];
+        let masks =
+            crate::MaskSet { width: 20, height: 20, instances: &instances, pixels: crate::MaskPixels::IdImage(&full) };
+        assert!(!near_mask_edge(&masks, 0, 10, 10));
+        assert!(near_mask_edge(&masks, 0, 1, 10));
     }
 }

@@ -890,7 +890,7 @@ fn ends_where_seen(
 
 /// The pixel (column, row) a camera-frame point projects to, rounded to the nearest; `None` behind the camera or
 /// outside the image.
-fn pixel_of(frame: &Frame<'_>, p: Vec3) -> Option<[i32; 2]> {
+pub(crate) fn pixel_of(frame: &Frame<'_>, p: Vec3) -> Option<[i32; 2]> {
     let [u, v] = frame.intrinsics.project(p)?;
     let (u, v) = (linalg::floor_i32(u + 0.5), linalg::floor_i32(v + 0.5));
     (u >= 0 && v >= 0 && u < i32::from(frame.width) && v < i32::from(frame.height)).then_some([u, v])
