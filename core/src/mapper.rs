@@ -1388,7 +1388,7 @@ fn on_own_footprint(
     let outside = |p: Vec3| {
         supports.iter().zip(&footprints).enumerate().any(|(k, (h, f))| {
             let (Some(f), Some(margin)) = (f, band(k, p)) else { return false };
-            height(h, p) < margin
+            low(k, h, p)
                 && f.axes.iter().zip(f.lo.iter().zip(&f.hi)).any(|(axis, (&lo, &hi))| {
                     let t = linalg::dot(*axis, linalg::sub(p, f.mean));
                     t < lo - margin || t > hi + margin
