@@ -779,7 +779,8 @@ impl<'s> Mapper<'s> {
             let n_supports =
                 support_planes(self.planes.as_slice(), patches, object.instance, points, params.g_p, &mut supports);
             // Points a mask lent the object from the support it rests on (a mask reaching past a slab's edge
-            // onto the floor) leave the fit: see `on_own_footprint`. Objects by geometry (MMQ) have no mask.
+            // onto the floor) leave the fit: see `on_own_footprint`. Objects by geometry (MMQ) have no mask (here
+            // and in the evidence below).
             let masks = checked.masks.as_ref().filter(|_| !params.variant.geometric_objects());
             let mask_slot = masks.and_then(|m| m.instances.iter().position(|i| i.id == object.instance));
             let on_mask_rim = |p: Vec3| match (masks, mask_slot, superquadric::pixel_of(&checked.frame, p)) {
@@ -823,11 +824,7 @@ impl<'s> Mapper<'s> {
                 supports: supports.get(..n_supports).unwrap_or(&[]),
                 free: probes.get(..n_probes).unwrap_or(&[]),
                 view: Some((&checked.frame, &params)),
-                masks: checked
-                    .masks
-                    .as_ref()
-                    .filter(|_| !params.variant.geometric_objects())
-                    .map(|m| (m, object.instance)),
+                masks: masks.map(|m| (m, object.instance)),
                 bounding: points.get(..n_bounding).filter(|_| n_bounding < n),
             };
             // Warm start from the track this object would join (its state in the camera frame); the full
