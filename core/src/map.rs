@@ -102,6 +102,9 @@ impl CellBits<'_> {
 
     /// The smallest (i0, j0, i1, j1) box holding every occupied cell, `None` when empty.
     pub fn occupied_box(&self) -> Option<(usize, usize, usize, usize)> {
+        if self.coding == CellCoding::Bitmap {
+            return crate::cells::bitmap_box(self.bits, self.width as usize, self.height as usize);
+        }
         let mut b: Option<(usize, usize, usize, usize)> = None;
         self.for_each_set(|i, j| {
             b = Some(match b {

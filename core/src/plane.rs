@@ -167,16 +167,8 @@ impl Plane {
     /// cells. The cells right under an object resting on the plane are hidden by it, so an object's foot is
     /// judged against the extent of the plane, not its cells.
     pub fn within_occupied_box(&self, a: usize, b: usize, reach: usize) -> bool {
-        let (mut lo, mut hi) = ((usize::MAX, usize::MAX), (0usize, 0usize));
-        for y in 0..PLANE_GRID {
-            for x in 0..PLANE_GRID {
-                if self.is_occupied(x, y) {
-                    lo = (lo.0.min(x), lo.1.min(y));
-                    hi = (hi.0.max(x), hi.1.max(y));
-                }
-            }
-        }
-        lo.0 != usize::MAX && a + reach >= lo.0 && a <= hi.0 + reach && b + reach >= lo.1 && b <= hi.1 + reach
+        crate::cells::bitmap_box(&self.cells, PLANE_GRID, PLANE_GRID)
+            .is_some_and(|(a0, b0, a1, b1)| a + reach >= a0 && a <= a1 + reach && b + reach >= b0 && b <= b1 + reach)
     }
 
     /// Whether point `p` (camera frame, metres) lies on the plane: within the depth tolerance at its depth

@@ -682,15 +682,13 @@ fn extent_excess(
     let (mut arg_lo, mut arg_hi) = ([0usize; 3], [0usize; 3]);
     for (i, &p) in points.iter().enumerate() {
         let l = sq.local(p);
+        // Selects rather than branches: which point bounds an axis changes unpredictably from point to point.
         for ((((&x, h), m), ah), al) in l.iter().zip(&mut hi).zip(&mut lo).zip(&mut arg_hi).zip(&mut arg_lo) {
-            if x > *h {
-                *h = x;
-                *ah = i;
-            }
-            if x < *m {
-                *m = x;
-                *al = i;
-            }
+            let (above, below) = (x > *h, x < *m);
+            *ah = if above { i } else { *ah };
+            *h = if above { x } else { *h };
+            *al = if below { i } else { *al };
+            *m = if below { x } else { *m };
         }
     }
     for (k, (ah, al)) in arg_hi.iter().zip(&arg_lo).enumerate() {
@@ -1719,6 +1717,11 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
     Some(finish(&prob, &mut run, params.lm_max_iters, FRONT_ROUNDS, params))
 }
 
+/// E_sq, in multiples of `sq_max_error`, at which a fit halfway through its finishing iterations is refused
+/// without the rest ([`finish`]). Measured on redkitchen 0–299 with segmenter masks: 695 of 4 879 warm refits
+/// were above 2× after 6 of their 12 iterations, and 27 of those were accepted in the end.
+const HOPELESS_ERROR: f32 = 2.0;
+
 /// Rounds of [`finish`] that turn the shape's own free front samples into probes.
 const FRONT_ROUNDS: usize = 2;
 /// Finished candidates of a cold fit that get the free-front rounds.
@@ -1737,8 +1740,28 @@ const FRONT_FREE_MAX_SHARE: f32 = 0.1;
 /// Runs `iterations` LM iterations of `run` on `prob`; then, while the shape puts camera-facing samples in
 /// observed free space and the frame is at hand (`Evidence::view`), up to `rounds` times those samples
 /// become probes ([`front_view`]) and LM runs [`FRONT_ITERS`] more. The fit is judged with every probe.
+/// Two early refusals spare a fit that cannot pass: E_sq still [`HOPELESS_ERROR`] × `sq_max_error` or more
+/// halfway through the iterations, and a shape that fails the test on its points ([`fits_points`]) before the
+/// rounds, which only push it out of free space. Measured on redkitchen with segmenter masks: 2.3 M of the
+/// stage's 69.7 M instructions per frame (frames 0–59) spared, 11.2 superquadrics per frame kept over 0–299
+/// (11.1 before); the goldens and the sweeps are unchanged.
 fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, params: &Params) -> Fit {
-    levenberg_marquardt(prob, run, iterations, params);
+    // Half the iterations, then a shape still far from its points is given up (`HOPELESS_ERROR`).
+    let first = iterations / 2;
+    levenberg_marquardt(prob, run, first, params);
+    let halfway = model(&run.theta, &run.base);
+    let halfway_error = halfway.error(prob.points);
+    if halfway_error.is_nan() || halfway_error >= HOPELESS_ERROR * params.sq_max_error {
+        return Fit { sq: halfway, error: halfway_error, iterations: run.iterations, accepted: false };
+    }
+    levenberg_marquardt(prob, run, iterations - first, params);
+    // Measured on redkitchen 0–299 with segmenter masks: 9 of 1 190 shapes that failed here passed after the
+    // rounds.
+    let fitted = model(&run.theta, &run.base);
+    let fitted_error = fitted.error(prob.points);
+    if !fits_points(&fitted, fitted_error, prob, params) {
+        return Fit { sq: fitted, error: fitted_error, iterations: run.iterations, accepted: false };
+    }
     let mut extra = [[0.0f32; 3]; MAX_FRONT_PROBES];
     let mut n_extra = 0;
     // How the camera saw the final shape, when the last round looked at it and found nothing to add.
@@ -1761,6 +1784,11 @@ fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, par
         }
     }
     let judged = Problem { extra: extra.get(..n_extra).unwrap_or(&[]), ..*prob };
+    if n_extra == 0 {
+        // No round moved the shape: its fit to the points is the one checked above.
+        let accepted = respects_what_was_seen(&fitted, &judged, params, final_view);
+        return Fit { sq: fitted, error: fitted_error, iterations: run.iterations, accepted };
+    }
     let sq = model(&run.theta, &run.base);
     let mut fit = Fit { sq, error: sq.error(prob.points), iterations: run.iterations, accepted: false };
     fit.accepted = accepts(&fit.sq, fit.error, &judged, params, final_view);
@@ -1953,33 +1981,40 @@ pub fn is_consistent(sq: &Superquadric, points: &[Vec3], evidence: &Evidence<'_>
 /// within its support seen side-on ([`stays_within_support`]), the evidence respected ([`respects_evidence`]),
 /// and the camera-facing samples seen as [`front_view`] requires (`seen`: that view when the caller has it).
 fn accepts(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params, seen: Option<FrontView>) -> bool {
-    let fit = Fit { sq: *sq, error, iterations: 0, accepted: false };
-    let points = prob.points;
+    fits_points(sq, error, prob, params) && respects_what_was_seen(sq, prob, params, seen)
+}
+
+/// The part of [`accepts`] that reads the evidence: no support undercut, the probes outside, and the
+/// camera-facing surface seen where it should be ([`front_view`], or `seen` when the caller has it).
+fn respects_what_was_seen(sq: &Superquadric, prob: &Problem<'_>, params: &Params, seen: Option<FrontView>) -> bool {
+    stays_within_support(sq, prob)
+        && respects_evidence(sq, &prob.evidence, prob.extra)
+        && prob.evidence.view.is_none_or(|(frame, _)| {
+            // The view of this very shape when the caller has it (its counts do not depend on the probe room).
+            let v = seen.unwrap_or_else(|| front_view(sq, frame, params, &mut []));
+            v.free as f32 <= FRONT_FREE_MAX_SHARE * v.with_depth as f32
+                && (v.hidden + v.outside) as f32 <= FRONT_UNSEEN_MAX_SHARE * (v.with_depth + v.outside) as f32
+        })
+}
+
+/// The part of [`accepts`] that reads the fit points and the support box only (not the evidence): E_sq (`error`)
+/// below `sq_max_error`, the trimmed RMS distance and the outlier share within bounds, parameters within bounds,
+/// the centre and half-axes within the support box's allowance.
+fn fits_points(sq: &Superquadric, error: f32, prob: &Problem<'_>, params: &Params) -> bool {
     let (bbox_min, bbox_max) = prob.support_box;
     let half_diag = 0.5 * linalg::norm(linalg::sub(bbox_max, bbox_min));
     let grow = [half_diag; 3];
     let (lo, hi) = (linalg::sub(bbox_min, grow), linalg::add(bbox_max, grow));
     let centred = (0..3).all(|k| {
-        let c = fit.sq.centre.get(k).copied().unwrap_or(f32::NAN);
+        let c = sq.centre.get(k).copied().unwrap_or(f32::NAN);
         c >= lo.get(k).copied().unwrap_or(0.0) && c <= hi.get(k).copied().unwrap_or(0.0)
     });
-    let sized = fit.sq.scales.iter().all(|&a| a <= 1.5 * half_diag.max(MIN_SCALE));
-    let (rms, outliers) = trimmed_rms_distance(&fit.sq, points, 2.0 * params.sq_max_rms);
-    fit.error.is_finite()
-        && fit.error < params.sq_max_error
-        && rms <= params.sq_max_rms
-        && outliers <= OUTLIER_MAX_SHARE
-        && fit.sq.is_within_bounds()
-        && centred
-        && sized
-        && stays_within_support(&fit.sq, prob)
-        && respects_evidence(&fit.sq, &prob.evidence, prob.extra)
-        && prob.evidence.view.is_none_or(|(frame, _)| {
-            // The view of this very shape when the caller has it (its counts do not depend on the probe room).
-            let v = seen.unwrap_or_else(|| front_view(&fit.sq, frame, params, &mut []));
-            v.free as f32 <= FRONT_FREE_MAX_SHARE * v.with_depth as f32
-                && (v.hidden + v.outside) as f32 <= FRONT_UNSEEN_MAX_SHARE * (v.with_depth + v.outside) as f32
-        })
+    let sized = sq.scales.iter().all(|&a| a <= 1.5 * half_diag.max(MIN_SCALE));
+    if !(error.is_finite() && error < params.sq_max_error && sq.is_within_bounds() && centred && sized) {
+        return false;
+    }
+    let (rms, outliers) = trimmed_rms_distance(sq, prob.points, 2.0 * params.sq_max_rms);
+    rms <= params.sq_max_rms && outliers <= OUTLIER_MAX_SHARE
 }
 
 #[cfg(test)]
