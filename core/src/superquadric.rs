@@ -602,7 +602,7 @@ fn model(theta: &Theta, r0: &Mat3) -> Superquadric {
 /// as a slab (`Problem::slab_on`), in order, until the shape reaches no further below it than half
 /// [`SUPPORT_TOLERANCE`]: a slab does not go through what it rests on.
 fn lift_onto_slab_supports(theta: &mut Theta, r0: &Mat3, prob: &Problem<'_>) {
-    for (k, h) in prob.evidence.supports.iter().enumerate().take(8) {
+    for (k, h) in prob.evidence.supports.iter().enumerate().take(u8::BITS as usize) {
         if prob.slab_on & (1 << k) == 0 {
             continue;
         }
@@ -1039,7 +1039,7 @@ impl<'a> Problem<'a> {
 /// holding them out of it took 0.6 superquadrics per frame.
 fn slab_supports(points: &[Vec3], supports: &[HalfSpace], params: &Params) -> u8 {
     let mut bits = 0u8;
-    for (k, h) in supports.iter().enumerate().take(8) {
+    for (k, h) in supports.iter().enumerate().take(u8::BITS as usize) {
         let floor_like = -h.normal[1] >= FLOOR_LIKE_MIN_COS;
         let flat = !points.is_empty()
             && points.iter().all(|&p| linalg::dot(h.normal, p) - h.offset <= SLAB_BANDS * params.depth_tolerance(p[2]));
