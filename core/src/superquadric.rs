@@ -2296,6 +2296,37 @@ mod work_saving_tests {
         assert!(claimed > 5_000 && well_below > 1_000, "claimed {claimed}, well below {well_below}");
     }
 
+    /// Points on a sphere (r = 8 cm) 2 m ahead.
+    fn sphere() -> [Vec3; 100] {
+        let mut rng = Lcg(5);
+        let mut points = [[0.0f32; 3]; 100];
+        for x in points.iter_mut() {
+            *x = linalg::add([0.0, 0.0, 2.0], linalg::scale(rng.unit(), 0.08));
+        }
+        points
+    }
+
+    /// A warm refit still far from its points halfway through its iterations (E_sq ≥ `HOPELESS_ERROR` ×
+    /// `sq_max_error`: a 4 cm start 15 cm off, as when a track is matched to another object) stops there,
+    /// refused. Without the early refusal this one runs all 12 and recovers: one of the few fits the rule gives
+    /// up for the time it saves (27 of the 695 it stopped on redkitchen). One from a start 2 cm off runs on and
+    /// is accepted.
+    #[test]
+    fn a_hopeless_refit_stops_halfway() {
+        let params = Params::default();
+        let evidence = Evidence::default();
+        let points = sphere();
+        let far =
+            Superquadric { scales: [0.04; 3], eps: [1.0, 1.0], centre: [0.15, 0.0, 2.0], rotation: linalg::IDENTITY };
+        let fit = refine(&points, &far, &evidence, &params).expect("enough points");
+        assert!(!fit.accepted, "{fit:?}");
+        assert!(fit.error >= HOPELESS_ERROR * params.sq_max_error, "{fit:?}");
+        assert_eq!(fit.iterations, params.lm_max_iters / 2, "{fit:?}");
+        let near = Superquadric { centre: [0.02, 0.01, 2.0], scales: [0.1, 0.07, 0.08], ..far };
+        let fit = refine(&points, &near, &evidence, &params).expect("enough points");
+        assert!(fit.accepted && fit.error < params.sq_max_error, "{fit:?}");
+    }
+
     /// A cost bounded by `beaten` is the same bits as the unbounded one when it comes below it, and at least
     /// `beaten` when it stops early; the powers it keeps are the unbounded ones when it does not stop.
     #[test]
