@@ -727,15 +727,17 @@ impl<'s> Mapper<'s> {
             for k in first..last {
                 let n = taken.get(k - first).copied().unwrap_or(0);
                 self.sq_points_peak = self.sq_points_peak.max((k - first) * samples + n);
-                self.fit_object(k, n, (k - first) * samples, checked);
+                let slot = mask_slot.get(k - first).copied().flatten();
+                self.fit_object(k, n, (k - first) * samples, slot, checked);
             }
             first = last;
         }
         self.report.tracks = self.tracker.tracks.len() as u32;
     }
 
-    /// Fits object `k` to its `n` sampled points at `offset` in the fit-point pool and updates its track.
-    fn fit_object(&mut self, k: usize, n: usize, offset: usize, checked: &CheckedFrame<'_>) {
+    /// Fits object `k` to its `n` sampled points at `offset` in the fit-point pool and updates its track;
+    /// `mask_slot` is the object's own mask's position in the frame's masks (none for objects by geometry).
+    fn fit_object(&mut self, k: usize, n: usize, offset: usize, mask_slot: Option<usize>, checked: &CheckedFrame<'_>) {
         let params = self.params;
         let Some(object) = self.objects.get(k).copied() else { return };
         let mut state = SQ_NONE;
@@ -782,7 +784,6 @@ impl<'s> Mapper<'s> {
             // onto the floor) leave the fit: see `on_own_footprint`. Objects by geometry (MMQ) have no mask (here
             // and in the evidence below).
             let masks = checked.masks.as_ref().filter(|_| !params.variant.geometric_objects());
-            let mask_slot = masks.and_then(|m| m.instances.iter().position(|i| i.id == object.instance));
             let on_mask_rim = |p: Vec3| match (masks, mask_slot, superquadric::pixel_of(&checked.frame, p)) {
                 (Some(m), Some(slot), Some([u, v])) => near_mask_edge(m, slot, u, v),
                 _ => false,
