@@ -1258,12 +1258,11 @@ fn off_supports(points: &mut [Vec3], supports: &[superquadric::HalfSpace], param
     }
     let mean_z = points.iter().map(|p| p[2]).sum::<f32>() / points.len() as f32;
     let band = params.depth_tolerance(mean_z);
-    let height = |h: &superquadric::HalfSpace, p: Vec3| linalg::dot(h.normal, p) - h.offset;
     let mut tall = [false; superquadric::MAX_SUPPORTS];
     for (t, h) in tall.iter_mut().zip(supports.iter()) {
-        *t = points.iter().map(|&p| height(h, p)).fold(f32::MIN, f32::max) >= SUPPORT_BAND_HEIGHTS * band;
+        *t = points.iter().map(|&p| h.height(p)).fold(f32::MIN, f32::max) >= SUPPORT_BAND_HEIGHTS * band;
     }
-    let on = |p: Vec3| supports.iter().zip(&tall).any(|(h, &t)| t && height(h, p) < params.depth_tolerance(p[2]));
+    let on = |p: Vec3| supports.iter().zip(&tall).any(|(h, &t)| t && h.height(p) < params.depth_tolerance(p[2]));
     let kept = points.iter().filter(|&&p| !on(p)).count();
     if 2 * kept < points.len() {
         return points.len();
@@ -1337,17 +1336,16 @@ fn on_own_footprint(
     params: &Params,
     on_mask_rim: impl Fn(Vec3) -> bool,
 ) -> usize {
-    let height = |h: &superquadric::HalfSpace, p: Vec3| linalg::dot(h.normal, p) - h.offset;
     // Per support: the band height's cap (half the object's height over it), or none for a support the camera
     // sees from behind.
     let mut caps = [None; superquadric::MAX_SUPPORTS];
     for (cap, h) in caps.iter_mut().zip(supports) {
-        if height(h, [0.0; 3]) > 0.0 {
-            *cap = Some(0.5 * points.iter().map(|&p| height(h, p)).fold(0.0, f32::max));
+        if h.height([0.0; 3]) > 0.0 {
+            *cap = Some(0.5 * points.iter().map(|&p| h.height(p)).fold(0.0, f32::max));
         }
     }
     let band = |k: usize, p: Vec3| caps.get(k).copied().flatten().map(|c| params.depth_tolerance(p[2]).min(c));
-    let low = |k: usize, h: &superquadric::HalfSpace, p: Vec3| band(k, p).is_some_and(|b| height(h, p) < b);
+    let low = |k: usize, h: &superquadric::HalfSpace, p: Vec3| band(k, p).is_some_and(|b| h.height(p) < b);
     let above = |p: Vec3| supports.iter().enumerate().all(|(k, h)| !low(k, h, p));
     let n_above = points.iter().filter(|&&p| above(p)).count();
     if n_above < FOOTPRINT_MIN_POINTS || n_above == points.len() {
@@ -1359,7 +1357,7 @@ fn on_own_footprint(
         if cap.is_none() {
             continue;
         }
-        let onto = |p: Vec3| linalg::sub(p, linalg::scale(h.normal, height(h, p)));
+        let onto = |p: Vec3| linalg::sub(p, linalg::scale(h.normal, h.height(p)));
         let mut moments: Option<linalg::Moments> = None;
         for &p in points.iter().filter(|&&p| above(p)) {
             moments.get_or_insert_with(|| linalg::Moments::about(onto(p))).add(onto(p), 1.0);

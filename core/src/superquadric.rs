@@ -503,6 +503,13 @@ pub struct HalfSpace {
     pub offset: f32,
 }
 
+impl HalfSpace {
+    /// Height of `p` (camera frame) over the plane along the normal, metres: negative below it.
+    pub fn height(&self, p: Vec3) -> f32 {
+        linalg::dot(self.normal, p) - self.offset
+    }
+}
+
 /// What the camera saw around one object beyond its own points (camera frame, metres). The fit keeps the shape
 /// on its side of every support and out of every free-space probe: constraints in the LM objective and in the
 /// acceptance test.
@@ -1041,8 +1048,8 @@ fn slab_supports(points: &[Vec3], supports: &[HalfSpace], params: &Params) -> u8
     let mut bits = 0u8;
     for (k, h) in supports.iter().enumerate().take(u8::BITS as usize) {
         let floor_like = -h.normal[1] >= FLOOR_LIKE_MIN_COS;
-        let flat = !points.is_empty()
-            && points.iter().all(|&p| linalg::dot(h.normal, p) - h.offset <= SLAB_BANDS * params.depth_tolerance(p[2]));
+        let flat =
+            !points.is_empty() && points.iter().all(|&p| h.height(p) <= SLAB_BANDS * params.depth_tolerance(p[2]));
         if floor_like && flat {
             bits |= 1 << k;
         }
