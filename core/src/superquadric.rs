@@ -517,6 +517,12 @@ impl HalfSpace {
 pub struct Evidence<'a> {
     /// Planes the object rests on or stands against.
     pub supports: &'a [HalfSpace],
+    /// Faces of neighbouring objects' shapes that the object lies beyond (the mapper's tracked shapes of the
+    /// objects beside it): they bound the shape as the supports do in the finishing iterations and the acceptance
+    /// test, but not in the cold search's screening of its first guesses, which a neighbour's estimated face
+    /// would steer into other minima (the clutter scene's bin and pouf, perfect masks: G2R against the true
+    /// surfaces 4.1 → 9.5 mm when the screening saw them).
+    pub neighbours: &'a [HalfSpace],
     /// Points known to be empty: on the rays of observed pixels, in front of the observed surface by more than
     /// the noise ([`free_space_probes`]).
     pub free: &'a [Vec3],
@@ -532,6 +538,13 @@ pub struct Evidence<'a> {
     /// not all of them: the caller leaves out an object's foot on its support (`Mapper`'s support band), where
     /// an end's bounding point beside the floor cannot tell a neighbour from the floor. `None`: all fit points.
     pub bounding: Option<&'a [Vec3]>,
+}
+
+impl Evidence<'_> {
+    /// The half-spaces that bound the shape: the supports, then the neighbours' faces.
+    pub fn bounds(&self) -> impl Iterator<Item = &HalfSpace> {
+        self.supports.iter().chain(self.neighbours)
+    }
 }
 
 /// Free-space probes for an object seen in `frame`: on a [`PROBE_GRID`]² grid of rays over its pixel box
@@ -743,7 +756,7 @@ fn extent_excess(
             let far = (sign > 0.0) == (facing >= 0.0);
             let seen = if reach > seen_margin && (far || seen_margin < m) {
                 match (evidence.view, bound) {
-                    (Some((frame, params)), Some(l)) if !far || reaches_along_seen_face(sq, l, k) => {
+                    (Some((frame, params)), Some(l)) if !far || reaches_along_seen_face(sq, l, k, 0.0) => {
                         ends_where_seen(sq, l, out_dir, frame, params, evidence.masks)
                     }
                     _ => None,
@@ -802,8 +815,9 @@ fn abuts_other_object(
         && masks.held_by_other(u, v, own, params.min_confidence)
 }
 
-/// Largest shape exponent of a shape with flat faces for [`reaches_along_seen_face`].
-const FLAT_FACES_MAX_EPS: f32 = 0.5;
+/// Largest shape exponent of a shape with flat faces: above it an end's support point is not on a flat face
+/// (`reaches_along_seen_face`), and another object's shape has no face that separates it from its neighbours.
+pub const FLAT_FACES_MAX_EPS: f32 = 0.5;
 /// Least cosine between a face's normal and the direction to the camera for [`reaches_along_seen_face`]
 /// (the face is seen less than 78° from its normal, clearly more than edge-on).
 const SEEN_FACE_MIN_COS: f32 = 0.2;
@@ -821,12 +835,13 @@ const CONTINUATION_PROBES: usize = 24;
 /// Whether the support point `l` (local coordinates) that bounds the far end of local axis `k` lies on a flat
 /// face of the shape that runs along that axis and faces the camera: the top of a box seen from above, the side
 /// of a box turned 45°. The face is the one of the other two axes whose end the point is nearest to (relative to
-/// the half-axis), and the point must be nearer to it than to the end of axis `k` itself: a front face seen
+/// the half-axis), and the point must be nearer to it than to the end of axis `k` itself (or no more than `slack`
+/// nearer to that end, relative to the half-axis): a front face seen
 /// alone bounds the far end with a point on the face across the axis, and keeps the hidden-depth prior, as does
 /// a face seen nearly edge-on and a rounded shape (exponent above [`FLAT_FACES_MAX_EPS`]), which curves away
 /// from the camera beyond what it shows. With [`ends_where_seen`] the far end is observed and the prior gives it
 /// no room.
-fn reaches_along_seen_face(sq: &Superquadric, l: Vec3, k: usize) -> bool {
+fn reaches_along_seen_face(sq: &Superquadric, l: Vec3, k: usize, slack: f32) -> bool {
     if sq.eps.iter().any(|&e| e > FLAT_FACES_MAX_EPS) {
         return false;
     }
@@ -835,7 +850,7 @@ fn reaches_along_seen_face(sq: &Superquadric, l: Vec3, k: usize) -> bool {
         _ => 0.0,
     };
     let Some(j) = (0..3).filter(|&j| j != k).max_by(|&i, &j| reach(i).total_cmp(&reach(j))) else { return false };
-    if reach(j) < reach(k) {
+    if reach(j) < reach(k) - slack {
         return false;
     }
     let side = if l.get(j).is_some_and(|&x| x >= 0.0) { 1.0 } else { -1.0 };
@@ -871,21 +886,54 @@ fn ends_where_seen(
     params: &Params,
     masks: Option<(&MaskSet<'_>, u16)>,
 ) -> Option<f32> {
+    walk_beyond(sq, l, away, frame, params, masks, |_| false).end
+}
+
+/// What the walk of [`ends_where_seen`] found beyond a support point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Walk {
+    /// [`ends_where_seen`]'s answer: how far the surface went on before free space, `None` when the end is
+    /// unseen.
+    end: Option<f32>,
+    /// How far beyond the support point the walk found the object's own surface before it stopped (the farthest
+    /// probe that showed it, metres; 0 when none did), when it stopped by itself (free space, a nearer or a
+    /// farther surface, another instance's mask, a second depth hole); 0 when it ran past [`CONTINUATION_PX`]
+    /// pixels (something else flush with the object) or out of the image.
+    surface: f32,
+}
+
+/// The walk of [`ends_where_seen`], with how far it found the object's own surface going on ([`Walk`]); it also
+/// stops at a probe point that is `out_of_bounds` (below a support: a wall the object stands against continues
+/// its top within the depth tolerance at a grazing view).
+fn walk_beyond(
+    sq: &Superquadric,
+    l: Vec3,
+    away: Vec3,
+    frame: &Frame<'_>,
+    params: &Params,
+    masks: Option<(&MaskSet<'_>, u16)>,
+    out_of_bounds: impl Fn(Vec3) -> bool,
+) -> Walk {
+    const LOST: Walk = Walk { end: None, surface: 0.0 };
     let bound = linalg::add(sq.centre, linalg::mat_vec(&sq.rotation, l));
-    let [u0, v0] = pixel_of(frame, bound)?;
+    let Some([u0, v0]) = pixel_of(frame, bound) else { return LOST };
     let (lo, hi) = frame.raw_range(params);
-    let (mut extra, mut shadow) = (0.0f32, 0.0f32);
+    let (mut extra, mut shadow, mut surface) = (0.0f32, 0.0f32, 0.0f32);
     for _ in 0..CONTINUATION_PROBES {
-        let beyond = linalg::add(bound, linalg::scale(away, extra + SEEN_END_STEP + shadow));
-        let [u, v] = pixel_of(frame, beyond)?;
+        let ahead = extra + SEEN_END_STEP + shadow;
+        let beyond = linalg::add(bound, linalg::scale(away, ahead));
+        let Some([u, v]) = pixel_of(frame, beyond) else { return LOST };
+        if out_of_bounds(beyond) {
+            return Walk { end: None, surface };
+        }
         let raw = frame.raw_at(u, v);
         if raw > hi {
-            return (beyond[2] < params.depth_max).then_some(extra);
+            return Walk { end: (beyond[2] < params.depth_max).then_some(extra), surface };
         }
         if raw < lo {
             // A depth shadow: the next step decides, once.
             if shadow > 0.0 {
-                return None;
+                return Walk { end: None, surface };
             }
             shadow = SEEN_END_STEP;
             continue;
@@ -893,7 +941,7 @@ fn ends_where_seen(
         let seen = frame.metres(raw);
         let tolerance = params.depth_tolerance(seen);
         if beyond[2] < seen - tolerance {
-            return Some(extra);
+            return Walk { end: Some(extra), surface };
         }
         let other = || {
             masks.is_some_and(|(m, own)| {
@@ -901,17 +949,85 @@ fn ends_where_seen(
                 m.held_by_other(u, v, own, params.min_confidence)
             })
         };
-        if shadow > 0.0 || beyond[2] > seen + tolerance || other() {
-            return None;
+        if beyond[2] > seen + tolerance || other() {
+            return Walk { end: None, surface };
+        }
+        // The object's own surface, this far beyond the support point.
+        surface = ahead;
+        if shadow > 0.0 {
+            return Walk { end: None, surface };
         }
         // The surface goes on: walk on along it, a few pixels at most.
         extra += CONTINUATION_STEP;
-        let [u1, v1] = pixel_of(frame, linalg::add(bound, linalg::scale(away, extra)))?;
+        let Some([u1, v1]) = pixel_of(frame, linalg::add(bound, linalg::scale(away, extra))) else { return LOST };
         if (u1 - u0).abs().max((v1 - v0).abs()) > CONTINUATION_PX {
-            return None;
+            return LOST;
         }
     }
-    None
+    LOST
+}
+
+/// How much nearer (relative to the half-axis) to the end of its axis than to a face along it the support point of
+/// an end may lie and still count as on that face in [`reach_seen_surface`]: a fit that stops at its last point
+/// puts that point on the edge of the two faces.
+const EDGE_SLACK: f32 = 0.05;
+/// Least cosine between an end's direction and the line of sight for [`reach_seen_surface`] (60°).
+const FAR_END_MIN_COS: f32 = 0.5;
+
+/// Lengthens each far end of `theta`'s shape (rotation base `r0`; its direction within 60° of the line of sight,
+/// [`FAR_END_MIN_COS`]) whose support point lies on a flat, camera-facing face that runs along the axis ([`reaches_along_seen_face`]) until it reaches the object's own surface that the
+/// camera saw go on beyond that point ([`walk_beyond`]), when the shape stops more than [`CONTINUATION_STEP`]
+/// short of it; the other end stays where it is. A mask eroded by a few pixels loses the rim of its object, at a
+/// grazing view several centimetres of a box's top, and nothing in the fit reaches for points it does not have:
+/// the eroded shelf's cabinet, against a wall, ended 7.6 cm short of it. Returns whether it lengthened one.
+#[inline(never)] // kept out of `finish`'s frame, which the LM iterations nest in (the Cortex-M7's stack)
+fn reach_seen_surface(theta: &mut Theta, r0: &Mat3, prob: &Problem<'_>) -> bool {
+    let Some((frame, params)) = prob.evidence.view else { return false };
+    let sq = model(theta, r0);
+    let points = prob.extent_points;
+    if points.is_empty() || sq.eps.iter().any(|&e| e > FLAT_FACES_MAX_EPS) {
+        return false;
+    }
+    let view = linalg::normalize_or(sq.centre, [0.0, 0.0, 1.0]);
+    let mut lengthened = false;
+    for k in 0..3 {
+        let axis = linalg::column(&sq.rotation, k);
+        for sign in [1.0f32, -1.0] {
+            // Only an end well away from the camera: across the line of sight an eroded mask loses a pixel's
+            // width or two, and the surface beside an end may be a neighbour flush with it whose mask is missing.
+            if sign * linalg::dot(axis, view) < FAR_END_MIN_COS {
+                continue;
+            }
+            // The support point that bounds this end (the first that reaches furthest, as `extent_excess` takes).
+            let mut best: Option<(f32, Vec3)> = None;
+            for &p in points {
+                let l = sq.local(p);
+                let x = sign * l.get(k).copied().unwrap_or(0.0);
+                if best.is_none_or(|(b, _)| x > b) {
+                    best = Some((x, l));
+                }
+            }
+            let Some((reach, l)) = best else { continue };
+            // The shape ends about at that point, on the edge of the face along the axis and the face across it.
+            if !reaches_along_seen_face(&sq, l, k, EDGE_SLACK) {
+                continue;
+            }
+            let below = |p: Vec3| prob.evidence.bounds().any(|h| h.height(p) < 0.0);
+            let walk = walk_beyond(&sq, l, linalg::scale(axis, sign), frame, params, prob.evidence.masks, below);
+            let (Some(a), true) = (theta.get(k).copied(), walk.surface > 0.0) else { continue };
+            let short = reach + walk.surface - a;
+            if short > CONTINUATION_STEP && short.is_finite() {
+                if let Some(x) = theta.get_mut(k) {
+                    *x += 0.5 * short;
+                }
+                for (c, d) in theta.iter_mut().skip(5).take(3).zip(axis) {
+                    *c += sign * 0.5 * short * d;
+                }
+                lengthened = true;
+            }
+        }
+    }
+    lengthened
 }
 
 /// The pixel (column, row) a camera-frame point projects to, rounded to the nearest; `None` behind the camera or
@@ -1127,8 +1243,7 @@ fn penalties(sq: &Superquadric, prob: &Problem<'_>) -> (f32, Excess) {
     let extent = EXTENT_WEIGHT * n * excess.iter().map(|e| e * e).sum::<f32>();
     let support: f32 = prob
         .evidence
-        .supports
-        .iter()
+        .bounds()
         .map(|h| {
             // Clear of the support by its bounding box: the term is 0, as lowest_along would find.
             if sq.clears(h.normal, h.offset) {
@@ -1526,7 +1641,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
         // Supports: one-sided residuals e = lowest(n·x) − offset < 0; numerical rows for shape and rotation,
         // ∂e/∂t = n.
         let n_points = points.len() as f32;
-        for h in prob.evidence.supports {
+        for h in prob.evidence.bounds() {
             if base.clears(h.normal, h.offset) {
                 continue;
             }
@@ -1688,7 +1803,12 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
         *slot = p;
         n_few += 1;
     }
-    let screen = Problem { points: few.get(..n_few).unwrap_or(points), radial: true, ..prob };
+    let screen = Problem {
+        points: few.get(..n_few).unwrap_or(points),
+        radial: true,
+        evidence: Evidence { neighbours: &[], ..prob.evidence },
+        ..prob
+    };
     for (run, (r0, extent, eps, deepen)) in runs.iter_mut().zip(all) {
         if params.variant.ellipsoids_only() && eps != ELLIPSOID_EPS {
             continue; // MMQ fits ellipsoids only: the other shape guesses stay at infinite cost.
@@ -1814,6 +1934,9 @@ fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, par
         return Fit { sq: halfway, error: halfway_error, iterations: run.iterations, accepted: false };
     }
     levenberg_marquardt(prob, run, iterations - first, params);
+    if reach_seen_surface(&mut run.theta, &run.base, prob) {
+        run.cost = cost(&model(&run.theta, &run.base), prob);
+    }
     // Measured on redkitchen 0–299 with segmenter masks: 9 of 1 190 shapes that failed here passed after the
     // rounds.
     let fitted = model(&run.theta, &run.base);
@@ -1975,7 +2098,7 @@ fn stays_within_support(sq: &Superquadric, prob: &Problem<'_>) -> bool {
 /// Whether `sq` respects the `evidence` (and the `extra` probes of its fit): no support plane undercut by more
 /// than 1 cm, and at most 2 % of the free-space probes more than 1 cm inside the shape.
 pub fn respects_evidence(sq: &Superquadric, evidence: &Evidence<'_>, extra: &[Vec3]) -> bool {
-    let supported = evidence.supports.iter().all(|h| sq.lowest_along(h.normal) >= h.offset - SUPPORT_TOLERANCE);
+    let supported = evidence.bounds().all(|h| sq.lowest_along(h.normal) >= h.offset - SUPPORT_TOLERANCE);
     let inside = evidence
         .free
         .iter()
@@ -2633,6 +2756,58 @@ mod front_view_tests {
         assert!((abutting - (0.08 - ABUTTING_MARGIN)).abs() < 1e-3, "{abutting}");
         // A 30 cm run of surface is more than an eroded mask loses: unseen.
         assert_eq!(far_end(0.3, 0), 0.0);
+    }
+
+    /// A box's top that the mask lost the back of (an eroded mask, a grazing view) is reached where the camera saw
+    /// it end: the far end goes to the walked surface, the front stays; not into a wall the box stands against (a
+    /// support), not over a rim another instance holds, not across the line of sight, and not for a ball.
+    #[test]
+    fn an_eroded_top_is_reached_where_its_surface_was_seen() {
+        let (lo, hi, intrinsics, points) = seen_top_box();
+        let params = Params::default();
+        let rim = 0.065;
+        let back = hi[2] + rim;
+        // The fit that stops at the fit points (the back of the top at z = hi), lengthened by the rule: its
+        // (front, back) along z and its half-widths across.
+        let reach = |boxes: &[(Vec3, Vec3)], rim_id: u16, supports: &[HalfSpace], eps: [f32; 2]| {
+            let depth = scene_of(&intrinsics, boxes);
+            let frame = frame_of(&depth, intrinsics);
+            let ids = ids_of(&frame, |p| if p[2] > hi[2] + 2e-3 && p[2] < back + 2e-3 { rim_id } else { 1 });
+            let masks = two_instance_masks(&ids);
+            let evidence =
+                Evidence { view: Some((&frame, &params)), masks: Some((&masks, 1)), supports, ..Evidence::default() };
+            let prob = Problem::new(&points, &evidence, &params);
+            let fitted = Superquadric { eps, ..box_sq(lo, hi) };
+            let mut theta = [0.0; SQ_PARAMS];
+            theta[..3].copy_from_slice(&fitted.scales);
+            theta[3..5].copy_from_slice(&fitted.eps);
+            theta[5..8].copy_from_slice(&fitted.centre);
+            reach_seen_surface(&mut theta, &linalg::IDENTITY, &prob);
+            ((theta[7] - theta[2], theta[7] + theta[2]), [theta[0], theta[1]])
+        };
+        let flat = [0.1, 0.1];
+        let widths = [0.5 * (hi[0] - lo[0]), 0.5 * (hi[1] - lo[1])];
+        let whole = [(lo, [hi[0], hi[1], back])];
+        // The camera saw the top go on 6.5 cm and then free space: the back moves there (within a probe step).
+        let ((front, end), across) = reach(&whole, 0, &[], flat);
+        assert!((front - lo[2]).abs() < 1e-5, "the front stays: {front}");
+        assert!((end - back).abs() <= CONTINUATION_STEP, "reached {end} for {back}");
+        assert_eq!(across, widths, "the ends across the line of sight stay");
+        // A wall the box stands against right behind it continues the top within the depth tolerance at this
+        // view; as a support it ends the walk. Without it the walk runs on over the wall past the pixel bound,
+        // which leaves the end as it was (something else flush with the object).
+        let walled = [(lo, [hi[0], hi[1], back]), ([-1.0, -1.0, back], [1.0, 1.0, back + 0.2])];
+        let wall = HalfSpace { normal: [0.0, 0.0, -1.0], offset: -back };
+        let (_, end) = reach(&walled, 0, &[wall], flat).0;
+        assert!(end <= back + 1e-4 && end >= back - CONTINUATION_STEP, "stopped at the wall: {end} for {back}");
+        assert_eq!(reach(&walled, 0, &[], flat).0 .1, hi[2], "over the wall past the pixel bound");
+        // The rim held by another instance is a neighbour: nothing to reach.
+        assert_eq!(reach(&whole, 2, &[], flat).0 .1, hi[2]);
+        // A ball curves away unseen: the rule leaves it.
+        assert_eq!(reach(&whole, 0, &[], [1.0, 1.0]).0 .1, hi[2]);
+        // The top going on sideways (x) is not reached for: across the line of sight.
+        let wider = [(lo, [hi[0] + 0.065, hi[1], hi[2]])];
+        assert_eq!(reach(&wider, 0, &[], flat).1, widths);
     }
 
     fn box_sq(lo: Vec3, hi: Vec3) -> Superquadric {
