@@ -1455,12 +1455,7 @@ fn neighbour_gaussian_probes(gaussians: &[Gaussian], k: usize, reach: (Vec3, Vec
 /// written to `out`. Without them a box grows through its hidden contact face into the can beside it (2.4 cm on
 /// the clutter scene).
 fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, Vec3), out: &mut [Vec3]) -> usize {
-    let largest = other.scales.iter().fold(0.0f32, |m, &a| m.max(a));
-    if within_box(other.centre, object.bbox_min, object.bbox_max, 0.0)
-        || !within_box(other.centre, object.bbox_min, object.bbox_max, largest + FOREIGN_REACH)
-    {
-        return 0;
-    }
+    let Some(largest) = neighbour_in_reach(other, object) else { return 0 };
     let spacing = (largest / 3.0).max(0.01);
     let mut slots = out.iter_mut().take(OBSTACLE_PROBES);
     let mut n = 0;
@@ -1479,17 +1474,14 @@ fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, V
 /// [`superquadric::FLAT_FACES_MAX_EPS`]) that `object`'s fit `points` lie beyond, as a half-space with its normal
 /// towards them: the face of the local axis along which the points' mean lies furthest out relative to the
 /// half-axis, when at least 95 % of the points lie above it (no more than [`SUPPORT_SIDE_TOLERANCE`] below).
-/// `None` under the conditions of [`neighbour_shape_probes`] (`other` may be this object's own older state, or is
-/// beyond reach) or when the points straddle the face. Convex objects do not interpenetrate, and the face of a
+/// `None` when `other` is not in reach ([`neighbour_in_reach`]) or the points straddle the face. Convex objects do not interpenetrate, and the face of a
 /// box is a plane that separates it from what stands beside it: the probes on its surface are points, which a
 /// rounded shape can bulge between (the clutter scene's pouf, with eroded masks, reached 2 cm into the crate
 /// beside it on 8 of 10 frames).
 fn separating_face(other: &Superquadric, object: &Object, points: &[Vec3]) -> Option<superquadric::HalfSpace> {
-    let largest = other.scales.iter().fold(0.0f32, |m, &a| m.max(a));
     if points.is_empty()
         || other.eps.iter().any(|&e| e > superquadric::FLAT_FACES_MAX_EPS)
-        || within_box(other.centre, object.bbox_min, object.bbox_max, 0.0)
-        || !within_box(other.centre, object.bbox_min, object.bbox_max, largest + FOREIGN_REACH)
+        || neighbour_in_reach(other, object).is_none()
     {
         return None;
     }
@@ -1506,6 +1498,16 @@ fn separating_face(other: &Superquadric, object: &Object, points: &[Vec3]) -> Op
     let h = superquadric::HalfSpace { normal, offset };
     let above = points.iter().filter(|&&p| h.height(p) >= -SUPPORT_SIDE_TOLERANCE).count();
     ((above as f32) >= 0.95 * points.len() as f32).then_some(h)
+}
+
+/// The largest half-axis of another object's shape `other` when it may bound `object` ([`neighbour_shape_probes`],
+/// [`separating_face`]): its centre lies within that half-axis and [`FOREIGN_REACH`] of `object`'s support box but
+/// not inside it (there it may be this object's own older state).
+fn neighbour_in_reach(other: &Superquadric, object: &Object) -> Option<f32> {
+    let largest = other.scales.iter().fold(0.0f32, |m, &a| m.max(a));
+    let (lo, hi) = (object.bbox_min, object.bbox_max);
+    (!within_box(other.centre, lo, hi, 0.0) && within_box(other.centre, lo, hi, largest + FOREIGN_REACH))
+        .then_some(largest)
 }
 
 /// Whether `p` lies in the box [`lo` − `margin`, `hi` + `margin`] (metres, per axis).
@@ -1526,7 +1528,7 @@ mod separating_face_tests {
     const CRATE: Superquadric =
         Superquadric { scales: [0.25, 0.2, 0.2], eps: [0.1, 0.1], centre: [0.0, 0.0, 2.0], rotation: linalg::IDENTITY };
 
-    /// The camera-facing half of a 12 cm ball at `centre` (camera frame), 100 points.
+    /// The camera-facing half of a ball of 12 cm radius at `centre` (camera frame), 100 points.
     fn ball_front(centre: Vec3) -> Vec<Vec3> {
         let mut points = Vec::new();
         for i in 0..10 {
@@ -1560,9 +1562,9 @@ mod separating_face_tests {
         let above = ball_front([0.0, -0.32, 2.0]);
         let h = separating_face(&CRATE, &object_of(&above), &above).expect("a face");
         assert!(linalg::dot(h.normal, [0.0, -1.0, 0.0]) > 0.999 && (h.offset - 0.2).abs() < 1e-5, "{h:?}");
-        // A rounded neighbour has no face; points that straddle the face plane (a ball half inside the crate's
-        // extension: beside and below it) give none; nor a shape centred inside the object's box (its own older
-        // state) or one beyond reach.
+        // A rounded neighbour has no face; points that straddle the face plane (a ball beside the crate's lower
+        // edge, reaching 7 cm behind the plane of its right face) give none; nor a shape centred inside the
+        // object's box (its own older state) or one beyond reach.
         let ball = Superquadric { eps: [1.0, 1.0], ..CRATE };
         assert!(separating_face(&ball, &object_of(&points), &points).is_none());
         let straddling = ball_front([0.3, 0.15, 2.0]);

@@ -975,9 +975,10 @@ const EDGE_SLACK: f32 = 0.05;
 const FAR_END_MIN_COS: f32 = 0.5;
 
 /// Lengthens each far end of `theta`'s shape (rotation base `r0`; its direction within 60° of the line of sight,
-/// [`FAR_END_MIN_COS`]) whose support point lies on a flat, camera-facing face that runs along the axis ([`reaches_along_seen_face`]) until it reaches the object's own surface that the
-/// camera saw go on beyond that point ([`walk_beyond`]), when the shape stops more than [`CONTINUATION_STEP`]
-/// short of it; the other end stays where it is. A mask eroded by a few pixels loses the rim of its object, at a
+/// [`FAR_END_MIN_COS`]) whose support point lies on a flat, camera-facing face that runs along the axis
+/// ([`reaches_along_seen_face`]) until it reaches the object's own surface that the camera saw go on beyond that
+/// point ([`walk_beyond`]), when the shape stops more than [`CONTINUATION_STEP`] short of it; the other end stays
+/// where it is. A mask eroded by a few pixels loses the rim of its object, at a
 /// grazing view several centimetres of a box's top, and nothing in the fit reaches for points it does not have:
 /// the eroded shelf's cabinet, against a wall, ended 7.6 cm short of it. Returns whether it lengthened one.
 #[inline(never)] // kept out of `finish`'s frame, which the LM iterations nest in (the Cortex-M7's stack)
