@@ -799,17 +799,19 @@ const END_RIM: f32 = 0.02;
 /// nearest, on its front face (the clutter scene's crate, fitted before the bin beside it, reached 3.1–3.5 cm
 /// into it on frame 0 of seeds 6 and 7).
 fn nearest_on_end(sq: &Superquadric, points: &[Vec3], k: usize, sign: f32, bound: Vec3) -> Option<Vec3> {
-    let at = |l: Vec3| sign * l.get(k).copied().unwrap_or(0.0);
-    let from = at(bound) - END_RIM;
+    // Along the axis in the camera frame (one dot product a point; the centre's share is the same for all).
+    let axis = linalg::scale(linalg::column(&sq.rotation, k), sign);
+    let from = linalg::dot(axis, linalg::add(sq.centre, linalg::mat_vec(&sq.rotation, bound))) - END_RIM;
     let mut best: Option<(f32, Vec3)> = None;
     for &p in points {
-        let l = sq.local(p);
-        let d = linalg::dot(p, p);
-        if at(l) >= from && best.is_none_or(|(b, _)| d < b) {
-            best = Some((d, l));
+        if linalg::dot(axis, p) >= from {
+            let d = linalg::dot(p, p);
+            if best.is_none_or(|(b, _)| d < b) {
+                best = Some((d, p));
+            }
         }
     }
-    best.map(|(_, l)| l).filter(|&l| l != bound)
+    best.map(|(_, p)| sq.local(p)).filter(|&l| l != bound)
 }
 
 /// Whether another object was seen where the shape would continue beyond the support point `l` (local
