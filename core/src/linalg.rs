@@ -9,6 +9,12 @@ pub type Vec3 = [f32; 3];
 /// Symmetric 3×3 matrix stored as `[xx, xy, xz, yy, yz, zz]`.
 pub type Sym3 = [f32; 6];
 
+/// The mean of `points` (NaN components when there are none: callers check).
+#[inline]
+pub fn mean_of(points: &[Vec3]) -> Vec3 {
+    scale(points.iter().fold([0.0; 3], |a, &p| add(a, p)), 1.0 / points.len() as f32)
+}
+
 /// a − b.
 #[inline]
 pub fn sub(a: Vec3, b: Vec3) -> Vec3 {

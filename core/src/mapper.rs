@@ -1219,7 +1219,7 @@ fn support_planes(
     if points.is_empty() {
         return 0;
     }
-    let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
+    let mean = linalg::mean_of(points);
     // The half-space of the plane through `c` with normal `n`, turned towards the object, when the object lies
     // on one side of it; with the foot of the object's mean on it.
     let side_of = |n: Vec3, c: Vec3| {
@@ -1485,7 +1485,7 @@ fn separating_face(other: &Superquadric, object: &Object, points: &[Vec3]) -> Op
     {
         return None;
     }
-    let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
+    let mean = linalg::mean_of(points);
     let l = other.local(mean);
     let out = |k: usize| match (l.get(k), other.scales.get(k)) {
         (Some(&x), Some(&a)) if a > 0.0 => libm::fabsf(x) / a,

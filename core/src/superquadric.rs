@@ -717,32 +717,10 @@ fn extent_excess(
     if points.is_empty() {
         return out;
     }
-    // The extremes along each local axis and the first point that reaches each (by index: the bounding points'
-    // local coordinates are taken once at the end, the same bits).
-    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
-    let (mut arg_lo, mut arg_hi) = ([0usize; 3], [0usize; 3]);
-    for (i, &p) in points.iter().enumerate() {
-        let l = sq.local(p);
-        // Selects rather than branches: which point bounds an axis changes unpredictably from point to point.
-        for ((((&x, h), m), ah), al) in l.iter().zip(&mut hi).zip(&mut lo).zip(&mut arg_hi).zip(&mut arg_lo) {
-            let (above, below) = (x > *h, x < *m);
-            *ah = if above { i } else { *ah };
-            *h = if above { x } else { *h };
-            *al = if below { i } else { *al };
-            *m = if below { x } else { *m };
-        }
-    }
-    for (k, (ah, al)) in arg_hi.iter().zip(&arg_lo).enumerate() {
-        let at = |i: usize| points.get(i).map_or([0.0; 3], |&p| sq.local(p));
-        if let Some(b) = out.bound.get_mut(2 * k) {
-            *b = at(*ah);
-        }
-        if let Some(b) = out.bound.get_mut(2 * k + 1) {
-            *b = at(*al);
-        }
-    }
+    out.bound = bounding_points(sq, points);
     for k in 0..3 {
-        let (Some(&a), Some(&lo), Some(&hi)) = (sq.scales.get(k), lo.get(k), hi.get(k)) else { continue };
+        let extreme = |end: usize| out.bound.get(end).and_then(|l| l.get(k)).copied();
+        let (Some(&a), Some(lo), Some(hi)) = (sq.scales.get(k), extreme(2 * k + 1), extreme(2 * k)) else { continue };
         let axis = linalg::column(&sq.rotation, k);
         let facing = linalg::dot(axis, view);
         let m = (allowance.margin)(a);
@@ -812,6 +790,42 @@ fn nearest_on_end(sq: &Superquadric, points: &[Vec3], k: usize, sign: f32, bound
         }
     }
     best.map(|(_, p)| sq.local(p)).filter(|&l| l != bound)
+}
+
+/// The fit point that bounds each end of `sq`'s local axes, in local coordinates: for axis k, the first of `points`
+/// that reaches furthest along +k (index 2k) and along −k (2k + 1); all 0 without points. [`extent_excess`]'s
+/// extremes and bounding points, and [`reach_seen_surface`]'s.
+#[inline(never)] // its extremes stay out of the frames it is called from (the Cortex-M7's stack)
+fn bounding_points(sq: &Superquadric, points: &[Vec3]) -> [Vec3; 6] {
+    let mut bound = [[0.0; 3]; 6];
+    if points.is_empty() {
+        return bound;
+    }
+    // The extremes along each local axis and the first point that reaches each (by index: the bounding points'
+    // local coordinates are taken once at the end, the same bits).
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    let (mut arg_lo, mut arg_hi) = ([0usize; 3], [0usize; 3]);
+    for (i, &p) in points.iter().enumerate() {
+        let l = sq.local(p);
+        // Selects rather than branches: which point bounds an axis changes unpredictably from point to point.
+        for ((((&x, h), m), ah), al) in l.iter().zip(&mut hi).zip(&mut lo).zip(&mut arg_hi).zip(&mut arg_lo) {
+            let (above, below) = (x > *h, x < *m);
+            *ah = if above { i } else { *ah };
+            *h = if above { x } else { *h };
+            *al = if below { i } else { *al };
+            *m = if below { x } else { *m };
+        }
+    }
+    for (k, (ah, al)) in arg_hi.iter().zip(&arg_lo).enumerate() {
+        let at = |i: usize| points.get(i).map_or([0.0; 3], |&p| sq.local(p));
+        if let Some(b) = bound.get_mut(2 * k) {
+            *b = at(*ah);
+        }
+        if let Some(b) = bound.get_mut(2 * k + 1) {
+            *b = at(*al);
+        }
+    }
+    bound
 }
 
 /// Whether another object was seen where the shape would continue beyond the support point `l` (local
@@ -1018,25 +1032,19 @@ fn reach_seen_surface(theta: &mut Theta, r0: &Mat3, prob: &Problem<'_>) -> bool 
         return false;
     }
     let view = linalg::normalize_or(sq.centre, [0.0, 0.0, 1.0]);
+    let bound = bounding_points(&sq, points);
     let mut lengthened = false;
     for k in 0..3 {
         let axis = linalg::column(&sq.rotation, k);
-        for sign in [1.0f32, -1.0] {
+        for (end, sign) in [(2 * k, 1.0f32), (2 * k + 1, -1.0)] {
             // Only an end well away from the camera: across the line of sight an eroded mask loses a pixel's
             // width or two, and the surface beside an end may be a neighbour flush with it whose mask is missing.
             if sign * linalg::dot(axis, view) < FAR_END_MIN_COS {
                 continue;
             }
-            // The support point that bounds this end (the first that reaches furthest, as `extent_excess` takes).
-            let mut best: Option<(f32, Vec3)> = None;
-            for &p in points {
-                let l = sq.local(p);
-                let x = sign * l.get(k).copied().unwrap_or(0.0);
-                if best.is_none_or(|(b, _)| x > b) {
-                    best = Some((x, l));
-                }
-            }
-            let Some((reach, l)) = best else { continue };
+            // The support point that bounds this end.
+            let Some(&l) = bound.get(end) else { continue };
+            let reach = sign * l.get(k).copied().unwrap_or(0.0);
             // The shape ends about at that point, on the edge of the face along the axis and the face across it.
             if !reaches_along_seen_face(&sq, l, k, EDGE_SLACK) {
                 continue;
@@ -1217,7 +1225,7 @@ fn hidden_depth(points: &[Vec3]) -> f32 {
     if points.is_empty() {
         return 0.0;
     }
-    let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
+    let mean = linalg::mean_of(points);
     let view = linalg::normalize_or(mean, [0.0, 0.0, 1.0]);
     let u1 = linalg::normalize_or(linalg::cross(view, [0.0, 1.0, 0.0]), [1.0, 0.0, 0.0]);
     let u2 = linalg::cross(view, u1);
@@ -1804,6 +1812,8 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
         return None;
     }
     let prob = Problem::new(points, evidence, params);
+    // `linalg::mean_of`'s sums, written out: called here, the cold search's frame on the Cortex-M7 grows by 200
+    // bytes (`make firmware`'s stack high-water 25 720 against the 25 600-byte reserve).
     let mean = linalg::scale(points.iter().fold([0.0; 3], |a, &p| linalg::add(a, p)), 1.0 / points.len() as f32);
     let (e0, e1, e2) = (linalg::column(pca, 0), linalg::column(pca, 1), linalg::column(pca, 2));
     let frames = [linalg::from_columns(e0, e1, e2), linalg::from_columns(e1, e2, e0), linalg::from_columns(e2, e0, e1)];
