@@ -28,7 +28,7 @@ use crate::wire::{self, WireError};
 const MAX_OBJECTS_PER_PASS: usize = 64;
 /// A track's object also gets the cold search beside its warm start when the track has this many updates, and
 /// then at each doubling of it (3, 6, 12, 24, …; the first after two warm refits), when the warm refit used its
-/// whole iteration budget (`lm_max_iters`: the shape was still moving). Warm refits can settle in a worse basin
+/// whole iteration budget (`superquadric::finish_iterations`: the shape was still moving). Warm refits can settle in a worse basin
 /// than a fresh search finds and carry it on frame by frame (ycbv_0000's gelatin box thinned from 2.5 to 2.3 cm
 /// over nine refits, while the cold search of each frame found 2.4–2.9 cm at a lower error), and a long-lived
 /// track pays for a logarithmic number of searches; a refit that converged is left alone.
@@ -850,7 +850,7 @@ impl<'s> Mapper<'s> {
             skipped = warm.is_none() && self.tracker.skips_search(track_centre, object.class, &params);
             // The track's re-search ([`RESEARCH_FIRST_UPDATE`]): the cold search beside an accepted warm start
             // that did not converge.
-            let research = warm.is_some_and(|w| w.iterations >= params.lm_max_iters)
+            let research = warm.is_some_and(|w| w.iterations >= superquadric::finish_iterations(&params))
                 && own.and_then(|i| self.tracker.tracks.get(i)).is_some_and(|t| {
                     t.updates % RESEARCH_FIRST_UPDATE == 0 && (t.updates / RESEARCH_FIRST_UPDATE).is_power_of_two()
                 });

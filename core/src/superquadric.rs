@@ -19,7 +19,7 @@
 //! Jacobian (`Superquadric::distance_shape_gradient`, no extra powers either), accumulated point by point into
 //! JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹), λ ÷ 3 on success and × 10 on failure,
 //! parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale ≥ 0.005 m) after each step; the first
-//! acceptable one wins. Powers go through [`fastmath`], each logarithm taken once per point and model (`Powers`
+//! acceptable one wins. A warm refit from a track's state ([`refine`]) is finished the same way. Powers go through [`fastmath`], each logarithm taken once per point and model (`Powers`
 //! keeps them for the gradients).
 //!
 //! **Size prior.** Only the camera-facing half of an object is seen, so a superquadric that extends further
@@ -1451,6 +1451,14 @@ const FINISH_ITERS: u32 = 8;
 /// Most fit points the screening iterations see (evenly strided over the fit points).
 const SCREEN_POINTS: usize = 50;
 
+/// LM iterations of a finished fit, a screened guess of the cold search ([`fit`]) or a track's state ([`refine`]):
+/// [`FINISH_ITERS`], at most `lm_max_iters`. A warm refit had `lm_max_iters`. Measured against `lm_max_iters` (12) on redkitchen
+/// 0–299 with segmenter masks, together with [`SCREEN_POINTS`] 34: the stage's instructions per frame
+/// 66.7 → 56.1 M (frames 0–59), G2R 0.0177 → 0.0182 m, 10.79 superquadrics per frame, J_sq 3.14 → 2.92°.
+pub fn finish_iterations(params: &Params) -> u32 {
+    FINISH_ITERS.min(params.lm_max_iters)
+}
+
 /// Steps of the perturbed models per parameter (metres for scales and centre, radians for rotation): the shape
 /// columns of a support row are forward differences of the support function (`Superquadric::lowest_along`).
 const STEPS: Theta = [1e-3, 1e-3, 1e-3, 2e-3, 2e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3];
@@ -1587,15 +1595,18 @@ impl Perturbed {
 }
 
 /// Up to `iterations` more Levenberg–Marquardt iterations of `run`; stops early when a step improves the
-/// objective by less than 10⁻⁴ of itself or no damping finds a better point.
-fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, params: &Params) {
+/// objective by less than [`CONVERGED_DECREASE`] of itself or no damping finds a better point.
+/// `N` points' powers are kept between a cost and the next Jacobian (more points take the unbatched path): the
+/// fit points' [`BATCHED_SAMPLES`], or [`SCREEN_POINTS`] for runs on the screening points (a smaller frame on the
+/// Cortex-M7's stack).
+fn levenberg_marquardt<const N: usize>(prob: &Problem<'_>, run: &mut Run, iterations: u32, params: &Params) {
     let points = prob.points;
     let w = prob.prior;
     let mut theta = run.theta;
     let mut current = run.cost;
     let mut lambda = run.lambda;
     // The powers of the last accepted candidate at every point: the next Jacobian is taken at that same model.
-    let mut kept = [Powers::default(); BATCHED_SAMPLES];
+    let mut kept = [Powers::default(); N];
     let mut kept_model: Option<Superquadric> = None;
     // The extent excess of that candidate (the next Jacobian's, when it is that model).
     let mut kept_excess: Option<Excess> = None;
@@ -1761,7 +1772,7 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
             if c < current {
                 kept_model = Some(sq);
                 kept_excess = Some(ends);
-                if current - c < 1e-4 * current {
+                if current - c < CONVERGED_DECREASE * current {
                     run.converged = true;
                 }
                 theta = candidate;
@@ -1780,6 +1791,12 @@ fn levenberg_marquardt(prob: &Problem<'_>, run: &mut Run, iterations: u32, param
     run.cost = current;
     run.lambda = lambda;
 }
+
+/// Relative decrease of the objective below which an accepted LM step ends the iterations. Measured against
+/// 10⁻⁴, together with the warm refits' free-front rounds on the screening points ([`refine`]), on redkitchen 0–299 with
+/// segmenter masks: `make bench`'s superquadric stage 10.3 → 9.5 ms per frame, 10.68 → 10.88 superquadrics per
+/// frame, G2R 0.0182 → 0.0184 m; the random-shape test still ≥ 90 % within 1 cm / 10 %.
+const CONVERGED_DECREASE: f32 = 1e-3;
 
 /// Rotation step of the numerical support-constraint Jacobian, radians.
 const ROTATION_STEP: f32 = 1e-3;
@@ -1836,12 +1853,7 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
         .flat_map(|(f, x)| INITIAL_EPS.iter().flat_map(move |e| [(f, x, *e, false), (f, x, *e, true)]));
     // Screening sees every k-th point only (at most `SCREEN_POINTS`): the guesses are ranked, not finished.
     let mut few = [[0.0f32; 3]; SCREEN_POINTS];
-    let stride = points.len().div_ceil(SCREEN_POINTS).max(1);
-    let mut n_few = 0;
-    for (slot, &p) in few.iter_mut().zip(points.iter().step_by(stride)) {
-        *slot = p;
-        n_few += 1;
-    }
+    let n_few = strided(points, &mut few);
     let screen = Problem {
         points: few.get(..n_few).unwrap_or(points),
         radial: true,
@@ -1876,7 +1888,7 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
                 Some(done) => *run = done,
                 None if run.cost.is_finite() => {
                     let more = until.min(params.lm_max_iters).saturating_sub(run.iterations);
-                    levenberg_marquardt(&screen, run, more, params);
+                    levenberg_marquardt::<SCREEN_POINTS>(&screen, run, more, params);
                 }
                 None => {}
             }
@@ -1901,7 +1913,7 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
         if k == 1 && twins {
             continue;
         }
-        let fit = finish(&prob, run, FINISH_ITERS.min(params.lm_max_iters), rounds, params);
+        let fit = finish(&prob, run, finish_iterations(params), rounds, false, params);
         if fit.accepted {
             return Some(fit);
         }
@@ -1912,8 +1924,41 @@ pub fn fit(points: &[Vec3], pca: &Mat3, evidence: &Evidence<'_>, params: &Params
     best.map(|(_, f)| f)
 }
 
+/// [`FRONT_ITERS`] LM iterations of `run` after a free-front round found the `extra` probes on `sq` (its shape):
+/// on all of `prob`'s points, or for a `warm` refit ([`refine`]) on the screening points ([`strided`]). The
+/// rounds only push a shape settled on its points out of free space; a warm refit's see as many of the points as
+/// the screening does, the acceptance all of them (measured with [`CONVERGED_DECREASE`]).
+#[inline(never)] // the subset and the smaller LM stay out of `finish`'s frame (the Cortex-M7's stack)
+fn front_round(prob: &Problem<'_>, run: &mut Run, sq: &Superquadric, extra: &[Vec3], warm: bool, params: &Params) {
+    run.converged = false;
+    if warm {
+        let mut few = [[0.0f32; 3]; SCREEN_POINTS];
+        let n = strided(prob.points, &mut few);
+        let more = Problem { points: few.get(..n).unwrap_or(prob.points), extra, ..*prob };
+        run.cost = cost(sq, &more);
+        levenberg_marquardt::<SCREEN_POINTS>(&more, run, FRONT_ITERS, params);
+    } else {
+        let more = Problem { extra, ..*prob };
+        run.cost = cost(sq, &more);
+        levenberg_marquardt::<BATCHED_SAMPLES>(&more, run, FRONT_ITERS, params);
+    }
+}
+
+/// Every k-th of `points` (k the smallest stride that leaves at most `out.len()`), written to `out`; returns how
+/// many. The screening points of a cold fit and the free-front points of a warm refit.
+#[inline(never)] // its loop stays out of the frames it is called from (the Cortex-M7's stack)
+fn strided(points: &[Vec3], out: &mut [Vec3]) -> usize {
+    let stride = points.len().div_ceil(out.len().max(1)).max(1);
+    let mut n = 0;
+    for (slot, &p) in out.iter_mut().zip(points.iter().step_by(stride)) {
+        *slot = p;
+        n += 1;
+    }
+    n
+}
+
 /// Levenberg–Marquardt from a given superquadric only (a warm start, e.g. the object's track state), with the
-/// same objective, iteration budget and acceptance test as [`fit`].
+/// same objective, finishing iterations ([`finish_iterations`]) and acceptance test as [`fit`].
 pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, params: &Params) -> Option<Fit> {
     if points.len() < SQ_PARAMS {
         return None;
@@ -1932,7 +1977,7 @@ pub fn refine(points: &[Vec3], start: &Superquadric, evidence: &Evidence<'_>, pa
         iterations: 0,
         converged: false,
     };
-    Some(finish(&prob, &mut run, params.lm_max_iters, FRONT_ROUNDS, params))
+    Some(finish(&prob, &mut run, finish_iterations(params), FRONT_ROUNDS, true, params))
 }
 
 /// E_sq, in multiples of `sq_max_error`, at which a fit halfway through its finishing iterations is refused
@@ -1957,22 +2002,23 @@ const FRONT_FREE_MAX_SHARE: f32 = 0.1;
 
 /// Runs `iterations` LM iterations of `run` on `prob`; then, while the shape puts camera-facing samples in
 /// observed free space and the frame is at hand (`Evidence::view`), up to `rounds` times those samples
-/// become probes ([`front_view`]) and LM runs [`FRONT_ITERS`] more. The fit is judged with every probe.
+/// become probes ([`front_view`]) and LM runs [`FRONT_ITERS`] more ([`front_round`]; on the screening points
+/// for a `warm` refit). The fit is judged with every probe.
 /// Two early refusals spare a fit that cannot pass: E_sq still [`HOPELESS_ERROR`] × `sq_max_error` or more
 /// halfway through the iterations, and a shape that fails the test on its points ([`fits_points`]) before the
 /// rounds, which only push it out of free space. Measured on redkitchen with segmenter masks: 2.3 M of the
 /// stage's 69.7 M instructions per frame (frames 0–59) spared, 11.2 superquadrics per frame kept over 0–299
 /// (11.1 before); the goldens and the sweeps are unchanged.
-fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, params: &Params) -> Fit {
+fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, warm: bool, params: &Params) -> Fit {
     // Half the iterations, then a shape still far from its points is given up (`HOPELESS_ERROR`).
     let first = iterations / 2;
-    levenberg_marquardt(prob, run, first, params);
+    levenberg_marquardt::<BATCHED_SAMPLES>(prob, run, first, params);
     let halfway = model(&run.theta, &run.base);
     let halfway_error = halfway.error(prob.points);
     if halfway_error.is_nan() || halfway_error >= HOPELESS_ERROR * params.sq_max_error {
         return Fit { sq: halfway, error: halfway_error, iterations: run.iterations, accepted: false };
     }
-    levenberg_marquardt(prob, run, iterations - first, params);
+    levenberg_marquardt::<BATCHED_SAMPLES>(prob, run, iterations - first, params);
     if reach_seen_surface(&mut run.theta, &run.base, prob) {
         run.cost = cost(&model(&run.theta, &run.base), prob);
     }
@@ -1998,10 +2044,7 @@ fn finish(prob: &Problem<'_>, run: &mut Run, iterations: u32, rounds: usize, par
                 break;
             }
             n_extra += added;
-            let more = Problem { extra: extra.get(..n_extra).unwrap_or(&[]), ..*prob };
-            run.cost = cost(&sq, &more);
-            run.converged = false;
-            levenberg_marquardt(&more, run, FRONT_ITERS, params);
+            front_round(prob, run, &sq, extra.get(..n_extra).unwrap_or(&[]), warm, params);
         }
     }
     let judged = Problem { extra: extra.get(..n_extra).unwrap_or(&[]), ..*prob };
@@ -2477,9 +2520,8 @@ mod work_saving_tests {
 
     /// A warm refit still far from its points halfway through its iterations (E_sq ≥ `HOPELESS_ERROR` ×
     /// `sq_max_error`: a 4 cm start 15 cm off, as when a track is matched to another object) stops there,
-    /// refused. Without the early refusal this one runs all 12 and recovers: one of the few fits the rule gives
-    /// up for the time it saves (27 of the 695 it stopped on redkitchen). One from a start 2 cm off runs on and
-    /// is accepted.
+    /// refused: one of the few fits the rule gives up for the time it saves (27 of the 695 it stopped on
+    /// redkitchen when refits had 12 iterations). One from a start 2 cm off runs on and is accepted.
     #[test]
     fn a_hopeless_refit_stops_halfway() {
         let params = Params::default();
@@ -2490,7 +2532,7 @@ mod work_saving_tests {
         let fit = refine(&points, &far, &evidence, &params).expect("enough points");
         assert!(!fit.accepted, "{fit:?}");
         assert!(fit.error >= HOPELESS_ERROR * params.sq_max_error, "{fit:?}");
-        assert_eq!(fit.iterations, params.lm_max_iters / 2, "{fit:?}");
+        assert_eq!(fit.iterations, finish_iterations(&params) / 2, "{fit:?}");
         let near = Superquadric { centre: [0.02, 0.01, 2.0], scales: [0.1, 0.07, 0.08], ..far };
         let fit = refine(&points, &near, &evidence, &params).expect("enough points");
         assert!(fit.accepted && fit.error < params.sq_max_error, "{fit:?}");
