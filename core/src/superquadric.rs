@@ -174,19 +174,21 @@ impl Superquadric {
         (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3))
     }
 
-    /// E_sq over `points`.
+    /// E_sq over `points`: the mean of [`Superquadric::residual`]², from the batched powers (H = 2^(ε1·log2 F)
+    /// from the logarithm they took: the bits of `residual`'s `fastmath::pow`, summed in the same order from −0
+    /// as `Iterator::sum` does).
     pub fn error(&self, points: &[Vec3]) -> f32 {
         if points.is_empty() {
             return f32::INFINITY;
         }
-        points
-            .iter()
-            .map(|&p| {
-                let r = self.residual(p);
-                r * r
-            })
-            .sum::<f32>()
-            / points.len() as f32
+        let e1 = self.eps[0];
+        let mut sum = -0.0f32;
+        self.for_each_powers(points, |l, pw| {
+            let h = fastmath::pow_log2(pw.log2_f, e1);
+            let r = (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3));
+            sum += r * r;
+        });
+        sum / points.len() as f32
     }
 
     /// Signed distance of a camera-frame point from the surface to first order, metres: (G − 1)/‖∇G‖ with
@@ -2214,10 +2216,14 @@ pub fn robust_box(points: &[Vec3]) -> (Vec3, Vec3) {
 pub fn trimmed_rms_distance(sq: &Superquadric, points: &[Vec3], far: f32) -> (f32, f32) {
     let n = points.len().min(MAX_SAMPLES);
     let mut d = [0.0f32; MAX_SAMPLES];
-    for (x, &p) in d.iter_mut().zip(points) {
-        let e = sq.distance(p);
-        *x = if e.is_finite() { e * e } else { f32::INFINITY };
-    }
+    let mut slots = d.iter_mut();
+    // `Superquadric::distance` of each point, its powers taken four at a time.
+    sq.for_each_powers(points.get(..n).unwrap_or(points), |l, pw| {
+        if let Some(x) = slots.next() {
+            let e = sq.distance_from(l, &pw).0;
+            *x = if e.is_finite() { e * e } else { f32::INFINITY };
+        }
+    });
     let kept = (n * 9).div_ceil(10);
     let slice = d.get_mut(..n).unwrap_or(&mut []);
     slice.sort_unstable_by(f32::total_cmp);
