@@ -4,7 +4,7 @@
 use bytemuck::Zeroable;
 
 use crate::linalg::{self, Mat3, Vec3};
-use crate::superquadric::Superquadric;
+use crate::superquadric::{Superquadric, LANES};
 
 /// How [`CellBits::bits`] codes the occupied cells.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -215,12 +215,29 @@ impl MapSq {
     /// `f(p, cos)` with the camera-frame point p and the cosine (0, 1] of the angle between its outward normal
     /// and the direction back to the camera (1 for a face seen head-on, near 0 at grazing view).
     pub fn for_each_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3, f32)) {
+        // The normals are taken four grid points at a time (the batched powers), in grid order.
+        let mut batch = [([0.0f32; 3], [0.0f32; 3]); LANES];
+        let mut n = 0;
+        let mut judge = |batch: &[(Vec3, Vec3); LANES], n: usize| {
+            let normals = self.sq.normals_at_local_n(&batch.map(|(l, _)| l));
+            for (&(_, p), normal) in batch.iter().zip(normals).take(n) {
+                let facing = -linalg::dot(normal, p);
+                if facing > 0.0 {
+                    f(p, facing / linalg::norm(p).max(f32::MIN_POSITIVE));
+                }
+            }
+        };
         self.for_each_grid_point(spacing, |l, p| {
-            let facing = -linalg::dot(self.sq.normal_at_local(l), p);
-            if facing > 0.0 {
-                f(p, facing / linalg::norm(p).max(f32::MIN_POSITIVE));
+            if let Some(slot) = batch.get_mut(n) {
+                *slot = (l, p);
+                n += 1;
+            }
+            if n == LANES {
+                judge(&batch, n);
+                n = 0;
             }
         });
+        judge(&batch, n);
     }
 
     /// Every surface point of the sample grid, about [`SQ_SAMPLE_SPACING`] apart, whichever way its normal
@@ -246,6 +263,19 @@ impl MapSq {
         type Place = fn(f32, f32, f32) -> Vec3;
         let faces: [(f32, f32, f32, Place); 3] =
             [(a0, a1, a2, |w, u, v| [w, u, v]), (a1, a2, a0, |w, u, v| [v, w, u]), (a2, a0, a1, |w, u, v| [u, v, w])];
+        // Grid points go onto the surface four at a time (F from the batched powers), in grid order.
+        let mut batch = [[0.0f32; 3]; LANES];
+        let mut n = 0;
+        let mut project = |batch: &[Vec3; LANES], n: usize| {
+            for (&l, big_f) in batch.iter().zip(self.sq.implicit_n(batch)).take(n) {
+                let k = libm::powf(big_f, -0.5 * self.sq.eps[0]);
+                let l = linalg::scale(l, k);
+                let p = linalg::add(self.sq.centre, linalg::mat_vec(&self.sq.rotation, l));
+                if p.iter().all(|x| x.is_finite()) {
+                    f(l, p);
+                }
+            }
+        };
         for (aw, au, av, place) in faces {
             let (nu, nv) = (count(au), count(av));
             for side in [-1.0f32, 1.0] {
@@ -253,17 +283,19 @@ impl MapSq {
                     for j in 0..nv {
                         let u = -au + (2 * i + 1) as f32 * au / nu as f32;
                         let v = -av + (2 * j + 1) as f32 * av / nv as f32;
-                        let l = place(side * aw, u, v);
-                        let k = libm::powf(self.sq.implicit(l), -0.5 * self.sq.eps[0]);
-                        let l = linalg::scale(l, k);
-                        let p = linalg::add(self.sq.centre, linalg::mat_vec(&self.sq.rotation, l));
-                        if p.iter().all(|x| x.is_finite()) {
-                            f(l, p);
+                        if let Some(slot) = batch.get_mut(n) {
+                            *slot = place(side * aw, u, v);
+                            n += 1;
+                        }
+                        if n == LANES {
+                            project(&batch, n);
+                            n = 0;
                         }
                     }
                 }
             }
         }
+        project(&batch, n);
     }
 }
 

@@ -132,7 +132,7 @@ struct ShapeDerivatives {
 /// Points per batch of [`Superquadric::powers_n`]: two SSE or one AVX register of f32 on a host, so the
 /// compiler vectorises the lane loops (the same IEEE operations as the scalar path, so the same bits on every
 /// target; the Cortex-M7 runs them one by one).
-const LANES: usize = 4;
+pub(crate) const LANES: usize = 4;
 
 /// Signed power sign(w)·|w|^e used by the parametric surface.
 #[inline]
@@ -195,6 +195,23 @@ impl Superquadric {
     /// G = √H = F^(ε1/2) (positive outside). Falls back to the radial distance r·‖p̃‖ where ∇G vanishes.
     pub fn distance(&self, p: Vec3) -> f32 {
         self.distance_at(self.local(p)).0
+    }
+
+    /// [`Superquadric::implicit`] at each of `N` local coordinates, the same bits, from the batched powers
+    /// ([`Superquadric::powers_n`]: F = S^(ε2/ε1) + the third term).
+    pub(crate) fn implicit_n<const N: usize>(&self, l: &[Vec3; N]) -> [f32; N] {
+        self.powers_n(l).map(|pw| pw.xy + pw.t[2])
+    }
+
+    /// [`Superquadric::normal_at_local`] at each of `N` local coordinates, the same bits, from the batched
+    /// powers.
+    pub(crate) fn normals_at_local_n<const N: usize>(&self, l: &[Vec3; N]) -> [Vec3; N] {
+        let powers = self.powers_n(l);
+        let mut out = [[0.0f32; 3]; N];
+        for ((o, l), pw) in out.iter_mut().zip(l).zip(&powers) {
+            *o = linalg::mat_vec(&self.rotation, self.distance_from(*l, pw).1);
+        }
+        out
     }
 
     /// Outward unit normal (camera frame) of the surface point with local coordinates `l`.
