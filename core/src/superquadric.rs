@@ -1471,9 +1471,10 @@ const FINISH_ITERS: u32 = 8;
 const SCREEN_POINTS: usize = 50;
 
 /// LM iterations of a finished fit, a screened guess of the cold search ([`fit`]) or a track's state ([`refine`]):
-/// [`FINISH_ITERS`], at most `lm_max_iters`. A warm refit had `lm_max_iters`. Measured against `lm_max_iters` (12) on redkitchen
-/// 0–299 with segmenter masks, together with [`SCREEN_POINTS`] 34: the stage's instructions per frame
-/// 66.7 → 56.1 M (frames 0–59), G2R 0.0177 → 0.0182 m, 10.79 superquadrics per frame, J_sq 3.14 → 2.92°.
+/// 8, at most `lm_max_iters`. A warm refit had all `lm_max_iters` (12) until a later session; measured against
+/// them on redkitchen 0–299 with segmenter masks: `make bench`'s superquadric stage 11.03 → 10.37 ms per frame,
+/// 10.85 → 10.68 superquadrics per frame, G2R 0.0177 → 0.0182 m; the sweeps' 114 pinned runs unchanged in
+/// outcome.
 pub fn finish_iterations(params: &Params) -> u32 {
     FINISH_ITERS.min(params.lm_max_iters)
 }
