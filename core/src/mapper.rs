@@ -26,11 +26,11 @@ use crate::wire::{self, WireError};
 
 /// Most objects whose fit points are gathered in one pass over the frame.
 const MAX_OBJECTS_PER_PASS: usize = 64;
-/// A track's object also gets the cold search beside its warm start when the track has this many updates, and
-/// then at each doubling of it (3, 6, 12, 24, …; the first after two warm refits), when the warm refit used its
-/// whole iteration budget (`superquadric::finish_iterations`: the shape was still moving). Warm refits can settle in a worse basin
-/// than a fresh search finds and carry it on frame by frame (ycbv_0000's gelatin box thinned from 2.5 to 2.3 cm
-/// over nine refits, while the cold search of each frame found 2.4–2.9 cm at a lower error), and a long-lived
+/// A track's object also gets the cold search beside its warm start when the track has this many updates, and then at
+/// each doubling of it (3, 6, 12, 24, …; the first after two warm refits), when the warm refit used its whole
+/// iteration budget (`superquadric::finish_iterations`: the shape was still moving). Warm refits can settle in a
+/// worse basin than a fresh search finds and carry it on frame by frame (ycbv_0000's gelatin box thinned from 2.5 to
+/// 2.3 cm over nine refits, while the cold search of each frame found 2.4–2.9 cm at a lower error), and a long-lived
 /// track pays for a logarithmic number of searches; a refit that converged is left alone.
 const RESEARCH_FIRST_UPDATE: u32 = 3;
 /// The cold search's fit replaces the warm one when it is accepted, its error is below this share of the warm
