@@ -215,29 +215,16 @@ impl MapSq {
     /// `f(p, cos)` with the camera-frame point p and the cosine (0, 1] of the angle between its outward normal
     /// and the direction back to the camera (1 for a face seen head-on, near 0 at grazing view).
     pub fn for_each_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3, f32)) {
-        // The normals are taken four grid points at a time (the batched powers), in grid order.
-        let mut batch = [([0.0f32; 3], [0.0f32; 3]); LANES];
-        let mut n = 0;
-        let mut judge = |batch: &[(Vec3, Vec3); LANES], n: usize| {
-            let normals = self.sq.normals_at_local_n(&batch.map(|(l, _)| l));
-            for (&(_, p), normal) in batch.iter().zip(normals).take(n) {
-                let facing = -linalg::dot(normal, p);
+        // The normals of a batch of grid points are taken at once (the batched powers).
+        self.for_each_grid_batch(spacing, |batch, n| {
+            let normals = self.sq.normals_at_local_n(&batch.map(|g| g.local));
+            for (g, normal) in batch.iter().zip(normals).take(n).filter(|(g, _)| g.finite) {
+                let facing = -linalg::dot(normal, g.camera);
                 if facing > 0.0 {
-                    f(p, facing / linalg::norm(p).max(f32::MIN_POSITIVE));
+                    f(g.camera, facing / linalg::norm(g.camera).max(f32::MIN_POSITIVE));
                 }
             }
-        };
-        self.for_each_grid_point(spacing, |l, p| {
-            if let Some(slot) = batch.get_mut(n) {
-                *slot = (l, p);
-                n += 1;
-            }
-            if n == LANES {
-                judge(&batch, n);
-                n = 0;
-            }
         });
-        judge(&batch, n);
     }
 
     /// Every surface point of the sample grid, about [`SQ_SAMPLE_SPACING`] apart, whichever way its normal
@@ -251,30 +238,33 @@ impl MapSq {
 
     /// [`MapSq::for_each_surface_sample`] with grid points about `spacing` metres apart.
     pub fn for_each_surface_sample_spaced(&self, spacing: f32, mut f: impl FnMut(Vec3)) {
-        self.for_each_grid_point(spacing, |_, p| f(p));
+        self.for_each_grid_batch(spacing, |batch, n| {
+            for g in batch.iter().take(n).filter(|g| g.finite) {
+                f(g.camera);
+            }
+        });
     }
 
-    /// The surface grid of [`MapSq::for_each_surface_sample`] with points about `spacing` metres apart: `f(l, p)`
-    /// with the local point l and the camera frame point p (metres) of every finite grid point.
-    fn for_each_grid_point(&self, spacing: f32, mut f: impl FnMut(Vec3, Vec3)) {
+    /// The surface grid of [`MapSq::for_each_surface_sample`] with points about `spacing` metres apart, in grid
+    /// order, [`LANES`] at a time (the batched powers): `f(batch, n)` with the first `n` entries of `batch` new.
+    fn for_each_grid_batch(&self, spacing: f32, mut f: impl FnMut(&[GridPoint; LANES], usize)) {
         let [a0, a1, a2] = self.sq.scales;
         let count = |len: f32| (libm::ceilf(2.0 * len / spacing) as usize).clamp(1, 64);
         // (face axis w, in-face axes u, v) with their half-lengths; `place` puts (w, u, v) back in x, y, z order.
         type Place = fn(f32, f32, f32) -> Vec3;
         let faces: [(f32, f32, f32, Place); 3] =
             [(a0, a1, a2, |w, u, v| [w, u, v]), (a1, a2, a0, |w, u, v| [v, w, u]), (a2, a0, a1, |w, u, v| [u, v, w])];
-        // Grid points go onto the surface four at a time (F from the batched powers), in grid order.
+        // Grid points go onto the surface a batch at a time (F from the batched powers).
         let mut batch = [[0.0f32; 3]; LANES];
         let mut n = 0;
         let mut project = |batch: &[Vec3; LANES], n: usize| {
-            for (&l, big_f) in batch.iter().zip(self.sq.implicit_n(batch)).take(n) {
-                let k = libm::powf(big_f, -0.5 * self.sq.eps[0]);
-                let l = linalg::scale(l, k);
-                let p = linalg::add(self.sq.centre, linalg::mat_vec(&self.sq.rotation, l));
-                if p.iter().all(|x| x.is_finite()) {
-                    f(l, p);
-                }
+            let mut on_surface = [GridPoint::default(); LANES];
+            for ((g, &l), big_f) in on_surface.iter_mut().zip(batch).zip(self.sq.implicit_n(batch)).take(n) {
+                let local = linalg::scale(l, libm::powf(big_f, -0.5 * self.sq.eps[0]));
+                let camera = linalg::add(self.sq.centre, linalg::mat_vec(&self.sq.rotation, local));
+                *g = GridPoint { local, camera, finite: camera.iter().all(|x| x.is_finite()) };
             }
+            f(&on_surface, n);
         };
         for (aw, au, av, place) in faces {
             let (nu, nv) = (count(au), count(av));
@@ -297,6 +287,17 @@ impl MapSq {
         }
         project(&batch, n);
     }
+}
+
+/// A point of a superquadric's sample grid on its surface ([`MapSq::for_each_surface_sample`]).
+#[derive(Debug, Clone, Copy, Default)]
+struct GridPoint {
+    /// Local coordinates, metres.
+    local: Vec3,
+    /// Camera-frame position, metres.
+    camera: Vec3,
+    /// Whether `camera` is finite (only such points are samples).
+    finite: bool,
 }
 
 impl MapGmm {
