@@ -122,42 +122,67 @@ impl<'f> Grid<'f> {
     ) {
         let (w, h) = (frame.width as usize, frame.height as usize);
         let (lo, hi) = frame.raw_range(params);
-        let mut cells = points.iter_mut().zip(colours.chunks_exact_mut(2));
-        for cy in 0..rows {
+        for (cy, (point_row, colour_row)) in points.chunks_mut(cols).zip(colours.chunks_mut(2 * cols)).enumerate() {
+            if cy >= rows {
+                return;
+            }
             let (v0, vc, v1) = block_span(cy, step, h);
-            for cx in 0..cols {
-                let Some((point, rgb)) = cells.next() else { return };
-                let (u0, uc, u1) = block_span(cx, step, w);
-                *point = [0.0; 3];
-                let Some(centre) = frame.depth.get(vc * w + uc).copied().filter(|r| (lo..=hi).contains(r)) else {
-                    continue;
-                };
-                let tolerance = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
-                let near = near_interval((lo, hi), centre, tolerance);
-                let (mut sum, mut n) = (0u32, 0u32);
-                for v in v0..v1 {
-                    let row = frame.depth.get(v * w + u0..v * w + u1).unwrap_or(&[]);
-                    let (s, k) = match <&[u16; 4]>::try_from(row) {
-                        // The usual 4-pixel row, unrolled.
-                        Ok(four) => sum_near(four, near),
-                        Err(_) => sum_near(row, near),
-                    };
-                    sum += s;
-                    n += k;
+            let block = frame.depth.get(v0 * w..v1 * w).unwrap_or(&[]);
+            let centre_row = frame.depth.get(vc * w..vc * w + w).unwrap_or(&[]);
+            let y0 = vc.saturating_sub(1);
+            let above = frame.colour.get(3 * y0 * w..3 * y0 * w + 3 * w).unwrap_or(&[]);
+            let middle = frame.colour.get(3 * vc * w..3 * vc * w + 3 * w).unwrap_or(&[]);
+            // [`FILL_RUN`] cells at a time, in three loops whose iterations do not wait for each other (each step
+            // has a division): the centres' tolerances, the blocks' means and colours, the back-projections.
+            let runs = point_row.chunks_mut(FILL_RUN).zip(colour_row.chunks_mut(2 * FILL_RUN));
+            for (run, (points, rgbs)) in runs.enumerate() {
+                let x0 = run * FILL_RUN;
+                let mut tolerances = [0u32; FILL_RUN];
+                for (k, t) in tolerances.iter_mut().enumerate().take(points.len()) {
+                    let (_, uc, _) = block_span(x0 + k, step, w);
+                    let centre = centre_row.get(uc).copied().unwrap_or(0);
+                    *t = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
                 }
-                // n ≥ 1 (the centre is valid), so the mean is in range.
-                *point = cell_point((step, cx, cy), frame, (sum / n.max(1)) as u16);
-                // The colour of the 2 × 2 pixels about the centre (a quarter of the sensor's colour noise).
-                let (x0, y0) = (uc.saturating_sub(1), vc.saturating_sub(1));
-                let mut colour = [0u32; 3];
-                for (x, y) in [(x0, y0), (uc, y0), (x0, vc), (uc, vc)] {
-                    if let Some(&[r, g, b]) = frame.colour.get(3 * (y * w + x)..3 * (y * w + x) + 3) {
-                        colour = [colour[0] + r as u32, colour[1] + g as u32, colour[2] + b as u32];
+                // Each cell's mean raw depth, 0 when its centre pixel is not valid.
+                let mut means = [0u16; FILL_RUN];
+                for (k, (mean, rgb)) in means.iter_mut().zip(rgbs.chunks_exact_mut(2)).enumerate() {
+                    let (u0, uc, u1) = block_span(x0 + k, step, w);
+                    let Some(centre) = centre_row.get(uc).copied().filter(|r| (lo..=hi).contains(r)) else {
+                        rgb.fill(0);
+                        continue;
+                    };
+                    let near = near_interval((lo, hi), centre, tolerances.get(k).copied().unwrap_or(0));
+                    let (mut sum, mut n) = (0u32, 0u32);
+                    for row in block.chunks_exact(w) {
+                        let row = row.get(u0..u1).unwrap_or(&[]);
+                        let (s, k) = match <&[u16; 4]>::try_from(row) {
+                            // The usual 4-pixel row, unrolled.
+                            Ok(four) => sum_near(four, near),
+                            Err(_) => sum_near(row, near),
+                        };
+                        sum += s;
+                        n += k;
+                    }
+                    // n ≥ 1 (the centre is valid), so the mean is in range (and not 0: the centre is in range).
+                    *mean = (sum / n.max(1)) as u16;
+                    // The colour of the 2 × 2 pixels about the centre (a quarter of the sensor's colour noise):
+                    // the pixels left of and at the centre column, in the centre row and the one above.
+                    let x0 = uc.saturating_sub(1);
+                    let mut colour = [0u32; 3];
+                    for pixels in [above, middle] {
+                        for x in [x0, uc] {
+                            if let Some(&[r, g, b]) = pixels.get(3 * x..3 * x + 3) {
+                                colour = [colour[0] + r as u32, colour[1] + g as u32, colour[2] + b as u32];
+                            }
+                        }
+                    }
+                    if let [lo_half, hi_half] = rgb {
+                        *lo_half = (colour[0] / 4) as u16 | ((colour[1] / 4) as u16) << 8;
+                        *hi_half = (colour[2] / 4) as u16;
                     }
                 }
-                if let [lo_half, hi_half] = rgb {
-                    *lo_half = (colour[0] / 4) as u16 | ((colour[1] / 4) as u16) << 8;
-                    *hi_half = (colour[2] / 4) as u16;
+                for (k, (point, &mean)) in points.iter_mut().zip(&means).enumerate() {
+                    *point = if mean == 0 { [0.0; 3] } else { cell_point((step, x0 + k, cy), frame, mean) };
                 }
             }
         }
@@ -188,13 +213,7 @@ impl<'f> Grid<'f> {
         surface_jump(self.frame, self.params, self.step, z)
     }
 
-    /// The point of cell (x, y) when it lies on the surface of a cell whose point has depth `z` (metres): no
-    /// depth jump (`jump`, [`Grid::jump`] at `z`) separates them.
-    fn linked(&self, x: usize, y: usize, z: f32, jump: f32) -> Option<Vec3> {
-        self.point_at(x, y).filter(|q| libm::fabsf(q[2] - z) <= jump)
-    }
-
-    /// [`Grid::surfel`] from the normals computed once per cell (quantised to 1/32767).
+    /// The point and unit normal of cell (cx, cy) ([`Grid::surfels`]), from the normals computed once per cell (quantised to 1/32767).
     fn cached_surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
         let p = self.point_at(cx, cy)?;
         let i = 3 * self.index(cx, cy);
@@ -204,44 +223,116 @@ impl<'f> Grid<'f> {
         (n != [0.0; 3]).then_some((p, n))
     }
 
-    /// The point and unit normal (facing the camera) of cell (cx, cy): the normal from the neighbouring cells'
-    /// points on either side along each axis (the cell's own point stands in for a neighbour that is missing or
-    /// across a depth jump); with the cell's [`link::LEFT`]..[`link::DOWN`] bits (its neighbours on its surface).
-    fn surfel(&self, cx: usize, cy: usize) -> (u16, Option<(Vec3, Vec3)>) {
-        let Some(p) = self.point_at(cx, cy) else { return (0, None) };
-        let jump = self.jump(p[2]);
-        let left = if cx > 0 { self.linked(cx - 1, cy, p[2], jump) } else { None };
-        let up = if cy > 0 { self.linked(cx, cy - 1, p[2], jump) } else { None };
-        let (right, down) = (self.linked(cx + 1, cy, p[2], jump), self.linked(cx, cy + 1, p[2], jump));
-        let bits = [(left, link::LEFT), (right, link::RIGHT), (up, link::UP), (down, link::DOWN)]
-            .iter()
-            .fold(0, |b, (side, bit)| if side.is_some() { b | bit } else { b });
-        let along = |ahead: Option<Vec3>, behind: Option<Vec3>| -> Option<Vec3> {
-            match (ahead, behind) {
-                (Some(a), Some(b)) => Some(linalg::sub(a, b)),
-                (Some(a), None) => Some(linalg::sub(a, p)),
-                (None, Some(b)) => Some(linalg::sub(p, b)),
-                (None, None) => None,
-            }
-        };
-        let (Some(across), Some(downwards)) = (along(right, left), along(down, up)) else { return (bits, None) };
-        let n = linalg::normalize_or(linalg::cross(across, downwards), [0.0; 3]);
-        let n = if linalg::dot(n, p) > 0.0 { linalg::scale(n, -1.0) } else { n };
-        (bits, (linalg::dot(n, n) > 0.5).then_some((p, n)))
+    /// The cells of row `cy` (empty beyond the grid), as the points they index.
+    fn row(&self, cy: usize) -> &[Vec3] {
+        let len = self.points.len();
+        let start = cy.saturating_mul(self.cols).min(len);
+        self.points.get(start..(start + self.cols).min(len)).unwrap_or(&[])
     }
 
-    /// Writes each cell's normal ([`Grid::surfel`], quantised to 1/32767; all 0 = none) into `normals` and its
-    /// [`link::LEFT`]..[`link::DOWN`] bits into `links`.
+    /// Writes each cell's unit normal (facing the camera, quantised to 1/32767; all 0 = none) into `normals` and
+    /// its [`link::LEFT`]..[`link::DOWN`] bits (its neighbours on its surface: no depth jump at its depth) into
+    /// `links`. The normal comes from the neighbouring cells' points on either side along each axis (the cell's
+    /// own point stands in for a neighbour that is missing or across a depth jump); a cell without a point, or
+    /// without a neighbour on its surface along an axis, has none. [`SURFEL_LANES`] cells at a time, every
+    /// test a lane mask: the arithmetic runs side by side, without a branch per cell.
     #[inline(never)]
+    #[allow(clippy::indexing_slicing)] // every index is a lane (k < SURFEL_LANES: `from_fn`'s or a loop's over the lanes), a coordinate (c < 3) or a side (< 4) of a fixed-size array; none comes from the input
     fn surfels(&self, normals: &mut [u16], links: &mut [u16]) {
+        type Lanes = [f32; SURFEL_LANES];
         let mut cells = normals.chunks_exact_mut(3).zip(links.iter_mut());
         for cy in 0..self.rows {
-            for cx in 0..self.cols {
-                let Some((q, bits)) = cells.next() else { return };
-                let (on_surface, surfel) = self.surfel(cx, cy);
-                *bits = on_surface;
-                for (x, c) in q.iter_mut().zip(surfel.map_or([0.0; 3], |(_, nrm)| nrm)) {
-                    *x = crate::supervoxel::quantise_unit(c) as u16;
+            let (here, above, below) =
+                (self.row(cy), cy.checked_sub(1).map_or(&[][..], |y| self.row(y)), self.row(cy + 1));
+            for x0 in (0..self.cols).step_by(SURFEL_LANES) {
+                // The cell's point and its neighbours' (all 0 where there is none), coordinate by coordinate.
+                let mut p = [[0.0; SURFEL_LANES]; 3];
+                let mut side = [[[0.0; SURFEL_LANES]; 3]; 4];
+                let window = x0.checked_sub(1).and_then(|x| here.get(x..x + SURFEL_LANES + 2));
+                let column =
+                    |row: &[Vec3]| -> Option<[Vec3; SURFEL_LANES]> { row.get(x0..x0 + SURFEL_LANES)?.try_into().ok() };
+                if let (Some(window), Some(up), Some(down)) = (window, column(above), column(below)) {
+                    // Inside the grid: the batch's cells, their left and right neighbours and the rows above and
+                    // below them are slices.
+                    for c in 0..3 {
+                        for k in 0..SURFEL_LANES {
+                            let at = |row: &[Vec3], x: usize| row.get(x).map_or(0.0, |q| q[c]);
+                            p[c][k] = at(window, k + 1);
+                            side[0][c][k] = at(window, k);
+                            side[1][c][k] = at(window, k + 2);
+                            side[2][c][k] = at(&up, k);
+                            side[3][c][k] = at(&down, k);
+                        }
+                    }
+                } else {
+                    for k in 0..SURFEL_LANES {
+                        let cx = x0 + k;
+                        let at =
+                            |row: &[Vec3], x: Option<usize>| x.and_then(|x| row.get(x)).copied().unwrap_or([0.0; 3]);
+                        let points = [
+                            at(here, cx.checked_sub(1)),
+                            at(here, Some(cx + 1)),
+                            at(above, Some(cx)),
+                            at(below, Some(cx)),
+                        ];
+                        for (c, v) in at(here, Some(cx)).into_iter().enumerate() {
+                            p[c][k] = v;
+                        }
+                        for (s, q) in points.into_iter().enumerate() {
+                            for (c, v) in q.into_iter().enumerate() {
+                                side[s][c][k] = v;
+                            }
+                        }
+                    }
+                }
+                let z = p[2];
+                let has_point: [bool; SURFEL_LANES] = core::array::from_fn(|k| z[k] != 0.0);
+                let jump: Lanes = core::array::from_fn(|k| self.jump(z[k]));
+                // A neighbour lies on the cell's surface when it has a point within the jump of the cell's depth.
+                let on: [[bool; SURFEL_LANES]; 4] = core::array::from_fn(|s| {
+                    core::array::from_fn(|k| {
+                        let q = side[s][2][k];
+                        has_point[k] & (q != 0.0) & (libm::fabsf(q - z[k]) <= jump[k])
+                    })
+                });
+                let [left, right, up, down] = on;
+                // Along an axis: ahead − behind, the cell's own point standing in for a missing one.
+                let along = |ahead: usize, behind: usize| -> [Lanes; 3] {
+                    core::array::from_fn(|c| {
+                        core::array::from_fn(|k| {
+                            let a = if on[ahead][k] { side[ahead][c][k] } else { p[c][k] };
+                            let b = if on[behind][k] { side[behind][c][k] } else { p[c][k] };
+                            a - b
+                        })
+                    })
+                };
+                let (a, b) = (along(1, 0), along(3, 2));
+                let n: [Lanes; 3] = [
+                    core::array::from_fn(|k| a[1][k] * b[2][k] - a[2][k] * b[1][k]),
+                    core::array::from_fn(|k| a[2][k] * b[0][k] - a[0][k] * b[2][k]),
+                    core::array::from_fn(|k| a[0][k] * b[1][k] - a[1][k] * b[0][k]),
+                ];
+                let dot = |u: &[Lanes; 3], v: &[Lanes; 3], k: usize| {
+                    u[0][k] * v[0][k] + u[1][k] * v[1][k] + u[2][k] * v[2][k]
+                };
+                let length: Lanes = core::array::from_fn(|k| libm::sqrtf(dot(&n, &n, k)));
+                // linalg::normalize_or(n, 0), then turned towards the camera.
+                let inverse: Lanes = core::array::from_fn(|k| 1.0 / length[k]);
+                let unit: [Lanes; 3] = core::array::from_fn(|c| {
+                    core::array::from_fn(|k| if length[k] > 1e-12 { n[c][k] * inverse[k] } else { 0.0 })
+                });
+                let flip: Lanes = core::array::from_fn(|k| if dot(&unit, &p, k) > 0.0 { -1.0 } else { 1.0 });
+                let unit: [Lanes; 3] = core::array::from_fn(|c| core::array::from_fn(|k| unit[c][k] * flip[k]));
+                for k in 0..SURFEL_LANES.min(self.cols - x0) {
+                    let Some((q, bits)) = cells.next() else { return };
+                    *bits = (u16::from(left[k]) * link::LEFT)
+                        | (u16::from(right[k]) * link::RIGHT)
+                        | (u16::from(up[k]) * link::UP)
+                        | (u16::from(down[k]) * link::DOWN);
+                    let valid = (left[k] | right[k]) & (up[k] | down[k]) & (dot(&unit, &unit, k) > 0.5);
+                    for (c, x) in q.iter_mut().enumerate() {
+                        *x = crate::supervoxel::quantise_unit(if valid { unit[c][k] } else { 0.0 }) as u16;
+                    }
                 }
             }
         }
@@ -401,6 +492,11 @@ fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
     adopted
 }
 
+/// Cells per run of [`Grid::fill`]'s loops.
+const FILL_RUN: usize = 32;
+/// Cells per batch of [`Grid::surfels`].
+const SURFEL_LANES: usize = 4;
+
 /// Bit of a cell's blue colour word (the colour takes 8 bits) that marks it as a supporting plane's cell.
 const PLANE_FLAG: u16 = 0x8000;
 /// Largest angle between the normals of two neighbouring cells of one plane, degrees.
@@ -417,48 +513,68 @@ const MAX_PLANES: usize = 8;
 /// Completes each cell's link word (its [`link::LEFT`]..[`link::DOWN`] bits are set) with how its surface meets
 /// its right and lower neighbours' when both have a normal (`grid`'s normals are computed): coplanar, convex, one
 /// object's surface (the LCCP test of [`segment`]). `colours` are the cells' mean colours.
+#[inline(never)]
 fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u16]) {
     let cos_plane = libm::cosf(PLANE_ANGLE_DEG.to_radians());
     let cos_flat = libm::cosf(params.seg_concave_tolerance_deg.to_radians());
-    let colour_of = |i: usize| -> [i32; 3] {
-        match colours.get(2 * i..2 * i + 2) {
+    // Row cy's points, quantised normals and colours (empty beyond the grid).
+    let row = |cy: usize| {
+        let (first, end) = (cy.saturating_mul(grid.cols), cy.saturating_add(1).saturating_mul(grid.cols));
+        let points = grid.points.get(first..end).unwrap_or(&[]);
+        let normals = grid.normals.get(3 * first..3 * end).unwrap_or(&[]);
+        (points, normals, colours.get(2 * first..2 * end).unwrap_or(&[]))
+    };
+    // The point and normal of cell x of a row, as [`Grid::cached_surfel`] reads them.
+    let surfel = |(points, normals, _): (&[Vec3], &[u16], &[u16]), x: usize| -> Option<(Vec3, Vec3)> {
+        let p = points.get(x).filter(|p| p[2] != 0.0)?;
+        let &[a, b, c] = normals.get(3 * x..3 * x + 3)? else { return None };
+        const K: f32 = 1.0 / 32767.0;
+        let n = [a as i16 as f32 * K, b as i16 as f32 * K, c as i16 as f32 * K];
+        (n != [0.0; 3]).then_some((*p, n))
+    };
+    let colour = |(_, _, colours): (&[Vec3], &[u16], &[u16]), x: usize| -> [i32; 3] {
+        match colours.get(2 * x..2 * x + 2) {
             Some(&[rg, b]) => [(rg & 0xff) as i32, (rg >> 8) as i32, (b & 0xff) as i32],
             _ => [0; 3],
         }
     };
-    let mut words = links.iter_mut();
     for cy in 0..grid.rows {
-        // Each cell's surfel, read once as the right neighbour and kept for its own turn.
-        let mut here = grid.cached_surfel(0, cy);
-        for cx in 0..grid.cols {
-            let Some(word) = words.next() else { return };
-            let right = grid.cached_surfel(cx + 1, cy);
-            let Some((pa, na)) = core::mem::replace(&mut here, right) else { continue };
-            for (bx, by, on_surface, shift) in
-                [(cx + 1, cy, link::RIGHT, 0), (cx, cy + 1, link::DOWN, link::DOWN_SHIFT)]
-            {
-                if *word & on_surface == 0 {
-                    continue;
-                }
-                let Some((pb, nb)) = (if shift == 0 { right } else { grid.cached_surfel(bx, by) }) else { continue };
+        let (here, below) = (row(cy), row(cy + 1));
+        let words = links.get_mut(cy * grid.cols..(cy + 1) * grid.cols).unwrap_or(&mut []);
+        for (cx, word) in words.iter_mut().enumerate() {
+            let Some((pa, na)) = surfel(here, cx) else { continue };
+            let ca = colour(here, cx);
+            // How a's surface meets b's (`b` its surfel, `cb` its colour).
+            let meet = |(pb, nb): (Vec3, Vec3), cb: [i32; 3]| -> u16 {
                 let cos = linalg::dot(na, nb);
                 // bend = (n_a − n_b)·d̂ with d = p_a − p_b, compared without the square root and the division:
                 // bend ≥ CONVEX_MIN ⇔ e > 0 and e² ≥ CONVEX_MIN² |d|² (e = (n_a − n_b)·d); bend < 0 ⇔ e < 0.
                 let d = linalg::sub(pa, pb);
                 let e = linalg::dot(linalg::sub(na, nb), d);
-                let convex = e > 0.0 && e * e >= CONVEX_MIN * CONVEX_MIN * linalg::dot(d, d);
+                // Every test is evaluated and combined without a branch: the signs of e and the angles are noise
+                // on a flat surface, which a branch would mispredict half the time.
+                let convex = (e > 0.0) & (e * e >= CONVEX_MIN * CONVEX_MIN * linalg::dot(d, d));
                 // A nearly flat boundary that bends inwards between cells of different colour is a contact (a
                 // ball on the floor, a can against a crate: the surfaces meet tangentially, so the concave
                 // crease is too faint for the normals), not one surface.
-                let contact = || {
-                    let (ca, cb) = (colour_of(grid.index(cx, cy)), colour_of(grid.index(bx, by)));
-                    e < 0.0 && ca.iter().zip(&cb).map(|(a, b)| (a - b).abs()).max().unwrap_or(0) > COLOUR_STEP
-                };
-                let mut bits = link::NORMALS;
-                bits |= if cos >= cos_plane { link::COPLANAR } else { 0 };
-                bits |= if convex { link::CONVEX } else { 0 };
-                bits |= if convex || (cos >= cos_flat && !contact()) { link::JOINS } else { 0 };
-                *word |= bits << shift;
+                let step = (ca[0] - cb[0]).abs().max((ca[1] - cb[1]).abs()).max((ca[2] - cb[2]).abs());
+                let contact = (e < 0.0) & (step > COLOUR_STEP);
+                let coplanar = cos >= cos_plane;
+                let joins = convex | ((cos >= cos_flat) & !contact);
+                link::NORMALS
+                    | (u16::from(coplanar) * link::COPLANAR)
+                    | (u16::from(convex) * link::CONVEX)
+                    | (u16::from(joins) * link::JOINS)
+            };
+            if *word & link::RIGHT != 0 {
+                if let Some(b) = surfel(here, cx + 1) {
+                    *word |= meet(b, colour(here, cx + 1));
+                }
+            }
+            if *word & link::DOWN != 0 {
+                if let Some(b) = surfel(below, cx) {
+                    *word |= meet(b, colour(below, cx)) << link::DOWN_SHIFT;
+                }
             }
         }
     }
@@ -470,6 +586,7 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
 /// `FLAT_RATIO` × the middle one) and wide (largest σ ≥ `seg_structure_sigma`) is a
 /// plane. `counts` (one u16 per cell) and `candidates` are scratch. Returns the cells marked and the normal of the plane with the
 /// most cells, turned towards the camera (the up direction where that plane is a floor or a table).
+#[inline(never)]
 fn mark_planes(
     grid: &Grid<'_>,
     work: &mut [u16],
@@ -481,14 +598,7 @@ fn mark_planes(
 ) -> (u32, Option<Vec3>) {
     let n = grid.cols * grid.rows;
     let (Some(parents), Some(counts)) = (work.get_mut(..n), counts.get_mut(..n)) else { return (0, None) };
-    for (i, p) in parents.iter_mut().enumerate() {
-        *p = i as u16;
-    }
-    for_each_link(grid, |a, b, bits| {
-        if bits & link::COPLANAR != 0 {
-            union_find::union(parents, a, b);
-        }
-    });
+    join_links(grid, parents, |_, _, bits| bits & link::COPLANAR != 0);
     flatten(parents);
     components(grid, parents, counts, min_cells, candidates);
     // The planes (candidate slot k + 1 → plane index, in each candidate's `instance`).
@@ -519,10 +629,10 @@ fn mark_planes(
     // the depth tolerance of the plane's least-squares fit with a normal within [`PLANE_GROW_DEG`] of it; a
     // raster sweep and a reverse sweep, [`PLANE_GROW_SWEEPS`] times.
     let cos_grow = libm::cosf(PLANE_GROW_DEG.to_radians());
-    for sweep in 0..2 * PLANE_GROW_SWEEPS {
-        for (i, cx, cy) in raster(grid.cols, grid.rows, sweep % 2 == 1) {
+    for pass in 0..2 * PLANE_GROW_SWEEPS {
+        sweep(grid.cols, grid.rows, pass % 2 == 1, |i, cx, cy| {
             if colours.get(2 * i + 1).is_none_or(|&b| b & PLANE_FLAG != 0) {
-                continue;
+                return;
             }
             // Only a neighbour on the cell's surface can take it in: a plane's cell among those, or nothing to do.
             let neighbours = four_neighbours(cx, cy);
@@ -530,9 +640,9 @@ fn mark_planes(
                 grid.on_surface(i, k) && colours.get(2 * grid.index(x, y) + 1).is_some_and(|&b| b & PLANE_FLAG != 0)
             };
             if !neighbours.iter().enumerate().any(|(k, xy)| flagged(k, xy)) {
-                continue;
+                return;
             }
-            let Some((p, normal)) = grid.cached_surfel(cx, cy) else { continue };
+            let Some((p, normal)) = grid.cached_surfel(cx, cy) else { return };
             let tolerance = params.depth_tolerance(p[2]);
             let joined = neighbours.iter().enumerate().find_map(|(k, &(x, y))| {
                 grid.on_surface(i, k).then_some(())?;
@@ -547,7 +657,7 @@ fn mark_planes(
                 *b = (*b & 0xff) | PLANE_FLAG | plane << PLANE_SHIFT;
                 marked += 1;
             }
-        }
+        });
     }
     (marked, largest.map(|(_, up)| up))
 }
@@ -555,6 +665,7 @@ fn mark_planes(
 /// Calls `f(a, b, bits)` for every cell `a` and its right and then its lower neighbour `b` when both have a normal
 /// and no depth jump separates them, in raster order; `bits` are the link's [`link`] bits (at the right link's
 /// place).
+#[inline(never)]
 fn for_each_link(grid: &Grid<'_>, mut f: impl FnMut(usize, usize, u16)) {
     for (a, &word) in grid.links.iter().enumerate() {
         for (b, shift) in [(a + 1, 0), (a + grid.cols, link::DOWN_SHIFT)] {
@@ -566,44 +677,63 @@ fn for_each_link(grid: &Grid<'_>, mut f: impl FnMut(usize, usize, u16)) {
     }
 }
 
-/// The cells of a `cols × rows` grid as (index, column, row) in raster order, or in its reverse.
-fn raster(cols: usize, rows: usize, reverse: bool) -> Raster {
-    let n = cols * rows;
-    let (cx, cy) = if reverse { (cols.saturating_sub(1), rows.saturating_sub(1)) } else { (0, 0) };
-    Raster { cols, left: n, i: if reverse { n.saturating_sub(1) } else { 0 }, cx, cy, reverse }
-}
-
-/// The iterator of [`raster`] (no division per cell).
-struct Raster {
-    cols: usize,
-    left: usize,
-    i: usize,
-    cx: usize,
-    cy: usize,
-    reverse: bool,
-}
-
-impl Iterator for Raster {
-    type Item = (usize, usize, usize);
-
-    fn next(&mut self) -> Option<Self::Item> {
-        self.left = self.left.checked_sub(1)?;
-        let item = (self.i, self.cx, self.cy);
-        if self.reverse {
-            self.i = self.i.saturating_sub(1);
-            if self.cx == 0 {
-                (self.cx, self.cy) = (self.cols.saturating_sub(1), self.cy.saturating_sub(1));
-            } else {
-                self.cx -= 1;
-            }
-        } else {
-            self.i += 1;
-            self.cx += 1;
-            if self.cx == self.cols {
-                (self.cx, self.cy) = (0, self.cy + 1);
+/// Makes `parents` the union-find of the links for which `joins(a, b, bits)` holds (`a` a cell, `b` its right or
+/// lower neighbour, both with a normal and no depth jump between them, `bits` the link's [`link`] bits at the
+/// right link's place): the sets [`for_each_link`] with a union per joining link would make, each under its
+/// lowest index. The cells are visited in raster order, each with its links from the left and from above: a cell
+/// has not been touched before its turn (every link points forward), so it starts as its own root and each link
+/// costs one find, not the two of a union.
+#[inline(never)]
+fn join_links(grid: &Grid<'_>, parents: &mut [u16], joins: impl Fn(usize, usize, u16) -> bool) {
+    // Hangs the higher of two roots under the lower; returns the lower.
+    let hang = |parents: &mut [u16], r: usize, root: usize| -> usize {
+        let (lo, hi) = if r < root { (r, root) } else { (root, r) };
+        if let Some(p) = parents.get_mut(hi) {
+            *p = lo as u16;
+        }
+        lo
+    };
+    // The root of the previous cell's set when its turn ended (nothing has changed it since): its left link
+    // needs no find.
+    let mut left_root = 0;
+    for b in 0..parents.len() {
+        let mut root = b;
+        if let Some(p) = parents.get_mut(b) {
+            *p = b as u16;
+        }
+        // The right link of a row's last cell has no NORMALS bit (its right neighbour is off the grid).
+        let joined = |a: usize, bits: u16| bits & link::NORMALS != 0 && joins(a, b, bits);
+        if let Some(a) = b.checked_sub(1) {
+            if joined(a, grid.links.get(a).copied().unwrap_or(0)) {
+                root = hang(parents, left_root, root);
             }
         }
-        Some(item)
+        if let Some(a) = b.checked_sub(grid.cols) {
+            if joined(a, grid.links.get(a).map_or(0, |&w| w >> link::DOWN_SHIFT)) {
+                let r = union_find::find(parents, a);
+                if r != root {
+                    root = hang(parents, r, root);
+                }
+            }
+        }
+        left_root = root;
+    }
+}
+
+/// Calls `f(index, column, row)` for every cell of a `cols × rows` grid in raster order, or in its reverse.
+fn sweep(cols: usize, rows: usize, reverse: bool, mut f: impl FnMut(usize, usize, usize)) {
+    if reverse {
+        for cy in (0..rows).rev() {
+            for cx in (0..cols).rev() {
+                f(cy * cols + cx, cx, cy);
+            }
+        }
+    } else {
+        for cy in 0..rows {
+            for cx in 0..cols {
+                f(cy * cols + cx, cx, cy);
+            }
+        }
     }
 }
 
@@ -615,9 +745,16 @@ fn four_neighbours(cx: usize, cy: usize) -> [(usize, usize); 4] {
 
 /// Points every cell of the union-find `parents` at its root (the lowest index of its component, so earlier
 /// entries are final).
+#[inline(never)]
 fn flatten(parents: &mut [u16]) {
     for i in 0..parents.len() {
-        let root = union_find::find(parents, i);
+        // Every parent lies below its cell (unions hang the higher root under the lower, finds halve paths
+        // downwards), so the parent's entry is already its root: one read instead of a find.
+        let p = parents.get(i).copied().unwrap_or(0) as usize;
+        let root = match parents.get(p) {
+            Some(&r) if p < i => r as usize,
+            _ => union_find::find(parents, i),
+        };
         if let Some(p) = parents.get_mut(i) {
             *p = root as u16;
         }
@@ -628,6 +765,7 @@ fn flatten(parents: &mut [u16]) {
 /// (the caller's: a candidate list is 7.7 KB, which a returned value would copy on the Cortex-M7's stack) with
 /// their points' moments and box; returns how many found no room. `counts` (one u16 per cell) ends with each
 /// candidate's root holding its index + 1 (0 elsewhere).
+#[inline(never)]
 fn components(
     grid: &Grid<'_>,
     parents: &[u16],
@@ -1014,15 +1152,8 @@ pub fn segment(
     let on_plane = |i: usize| colours.get(2 * i + 1).is_some_and(|&b| b & PLANE_FLAG != 0);
     // 2. Objects: neighbouring cells join when no depth jump separates them and their boundary is locally
     // convex or nearly flat (LCCP).
-    for (i, p) in parents.iter_mut().enumerate() {
-        *p = i as u16;
-    }
     // A plane's cells join only each other here (see below for an object's face).
-    for_each_link(&grid, |ia, ib, bits| {
-        if on_plane(ia) == on_plane(ib) && bits & link::JOINS != 0 {
-            union_find::union(parents, ia, ib);
-        }
-    });
+    join_links(&grid, parents, |ia, ib, bits| bits & link::JOINS != 0 && on_plane(ia) == on_plane(ib));
     // A plane that meets a component along a mostly convex boundary is that object's face (a box's side, a
     // cabinet's front), not a support: it joins it. An object resting on a plane meets it along a concave crease
     // (a few links may read convex there: the majority decides, as in LCCP's segment-level convexity).
@@ -1103,10 +1234,10 @@ pub fn segment(
     // [`FILL_MIN_NEIGHBOURS`] of its four name it and none another (a hole in an object's mask would leave its
     // points to the Gaussians of what it rests on); a raster sweep and a reverse sweep, [`FILL_SWEEPS`] times;
     // what is left is no instance.
-    for sweep in 0..2 * FILL_SWEEPS {
-        for (i, cx, cy) in raster(grid.cols, grid.rows, sweep % 2 == 1) {
+    for pass in 0..2 * FILL_SWEEPS {
+        sweep(grid.cols, grid.rows, pass % 2 == 1, |i, cx, cy| {
             if parents.get(i) != Some(&FILL) {
-                continue;
+                return;
             }
             let mut named: Option<u16> = None;
             let mut unique = true;
@@ -1123,10 +1254,10 @@ pub fn segment(
             if let (Some(id), true, Some(x)) = (named, unique && naming >= FILL_MIN_NEIGHBOURS, parents.get_mut(i)) {
                 *x = id;
             }
-        }
+        });
     }
-    for x in parents.iter_mut().filter(|x| **x == FILL) {
-        *x = 0;
+    for x in parents.iter_mut() {
+        *x = if *x == FILL { 0 } else { *x };
     }
     stats.holed_cells_adopted = adopt_holed_cells(&grid, parents);
     // 3. Masks: every pixel with a valid depth near its cell's takes the cell's instance.
@@ -1147,17 +1278,18 @@ mod tests {
     use super::*;
 
     #[test]
-    fn raster_visits_every_cell_once_in_order_and_in_reverse() {
+    fn a_sweep_visits_every_cell_once_in_order_and_in_reverse() {
         for (cols, rows) in [(0, 0), (0, 3), (3, 0), (1, 1), (1, 4), (4, 1), (5, 3), (160, 120)] {
             let n = cols * rows;
             let cell = |i: usize| (i, i % cols, i / cols);
-            assert_eq!(raster(cols, rows, false).count(), n, "{cols} × {rows}");
-            assert_eq!(raster(cols, rows, true).count(), n, "{cols} × {rows} reversed");
-            for (k, item) in raster(cols, rows, false).enumerate() {
-                assert_eq!(item, cell(k), "{cols} × {rows}, step {k}");
-            }
-            for (k, item) in raster(cols, rows, true).enumerate() {
-                assert_eq!(item, cell(n - 1 - k), "{cols} × {rows} reversed, step {k}");
+            for reverse in [false, true] {
+                let mut k = 0;
+                sweep(cols, rows, reverse, |i, cx, cy| {
+                    let expected = if reverse { cell(n - 1 - k) } else { cell(k) };
+                    assert_eq!((i, cx, cy), expected, "{cols} × {rows}, reverse {reverse}, step {k}");
+                    k += 1;
+                });
+                assert_eq!(k, n, "{cols} × {rows}, reverse {reverse}");
             }
         }
     }
