@@ -213,14 +213,12 @@ impl<'f> Grid<'f> {
         surface_jump(self.frame, self.params, self.step, z)
     }
 
-    /// The point and unit normal of cell (cx, cy) ([`Grid::surfels`]), from the normals computed once per cell (quantised to 1/32767).
+    /// The point and unit normal of cell (cx, cy) ([`Grid::surfels`]), from the normals computed once per cell
+    /// (quantised to 1/32767).
     fn cached_surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
         let p = self.point_at(cx, cy)?;
         let i = 3 * self.index(cx, cy);
-        let &[a, b, c] = self.normals.get(i..i + 3)? else { return None };
-        const K: f32 = 1.0 / 32767.0;
-        let n = [a as i16 as f32 * K, b as i16 as f32 * K, c as i16 as f32 * K];
-        (n != [0.0; 3]).then_some((p, n))
+        Some((p, dequantised(self.normals.get(i..i + 3)?)?))
     }
 
     /// The cells of row `cy` (empty beyond the grid), as the points they index.
@@ -367,6 +365,16 @@ mod link {
     pub const JOINS: u16 = 1 << 7;
     /// Shift of the lower link's bits over the right one's.
     pub const DOWN_SHIFT: u16 = 4;
+}
+
+/// A cell's unit normal from its three quantised components (× 32767, as i16 bit patterns; [`Grid::surfels`]);
+/// `None` for all 0 (no normal) or fewer than three.
+#[inline]
+fn dequantised(q: &[u16]) -> Option<Vec3> {
+    let &[a, b, c] = q else { return None };
+    const K: f32 = 1.0 / 32767.0;
+    let n = [a as i16 as f32 * K, b as i16 as f32 * K, c as i16 as f32 * K];
+    (n != [0.0; 3]).then_some(n)
 }
 
 /// The centre pixel of cell (cx, cy) of a grid of `step`-pixel cells back-projected at raw depth `raw`, camera
@@ -527,10 +535,7 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
     // The point and normal of cell x of a row, as [`Grid::cached_surfel`] reads them.
     let surfel = |(points, normals, _): (&[Vec3], &[u16], &[u16]), x: usize| -> Option<(Vec3, Vec3)> {
         let p = points.get(x).filter(|p| p[2] != 0.0)?;
-        let &[a, b, c] = normals.get(3 * x..3 * x + 3)? else { return None };
-        const K: f32 = 1.0 / 32767.0;
-        let n = [a as i16 as f32 * K, b as i16 as f32 * K, c as i16 as f32 * K];
-        (n != [0.0; 3]).then_some((*p, n))
+        Some((*p, dequantised(normals.get(3 * x..3 * x + 3)?)?))
     };
     let colour = |(_, _, colours): (&[Vec3], &[u16], &[u16]), x: usize| -> [i32; 3] {
         match colours.get(2 * x..2 * x + 2) {
