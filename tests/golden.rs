@@ -405,6 +405,40 @@ fn real_segmentations_match_their_golden_fixture() {
     check_segmenter("real", &lines);
 }
 
+/// Windows of the synthetic frames that are no multiple of the segmenter's batches (cells per row not a multiple
+/// of 4 or 32, a last cell cut by the image's edge, 2- and 3-pixel cells), and whole frames on the mcu profile's
+/// coarser grid: the paths the 640 × 480 fixtures above do not take. (Its lines were the same before the link bits,
+/// normals and block means were computed in batches.)
+#[test]
+fn odd_sized_and_mcu_segmentations_match_their_golden_fixture() {
+    let mut host = bytemuck::zeroed_box::<HostStorage>();
+    let mut mcu = bytemuck::zeroed_box::<McuStorage>();
+    let mut lines = Vec::new();
+    for name in ["tabletop", "clutter", "dining"] {
+        let scene = Scene::named(name).unwrap();
+        let f = scene.render(1, Some(NOISE_SEED));
+        let full = f.frame.view_posed(&scene.camera, Some(&f.pose));
+        let mut mapper = Mapper::new(&mut *mcu, Params::default()).unwrap();
+        lines.push(segmenter_line(&mut mapper, &format!("{name} mcu"), 1, full));
+        let mut mapper = Mapper::new(&mut *host, Params::default()).unwrap();
+        for (w, h, u0, v0) in
+            [(637usize, 479usize, 2usize, 1usize), (424, 240, 100, 120), (333, 250, 150, 100), (161, 121, 240, 180)]
+        {
+            let depth: Vec<u16> =
+                (v0..v0 + h).flat_map(|v| full.depth[v * 640 + u0..v * 640 + u0 + w].to_vec()).collect();
+            let colour: Vec<u8> =
+                (v0..v0 + h).flat_map(|v| full.colour[3 * (v * 640 + u0)..3 * (v * 640 + u0 + w)].to_vec()).collect();
+            let mut intrinsics = full.intrinsics;
+            intrinsics.cx -= u0 as f32;
+            intrinsics.cy -= v0 as f32;
+            let window =
+                Frame { width: w as u16, height: h as u16, depth: &depth, colour: &colour, intrinsics, ..full };
+            lines.push(segmenter_line(&mut mapper, &format!("{name} {w}x{h}"), 1, window));
+        }
+    }
+    check_segmenter("sizes", &lines);
+}
+
 // --- The robustness sweep: which runs miss which targets ----------------------------------------------------------
 
 /// The outcome lines of one sweep grid: `<run>: ok` or `<run>: misses <target>, …`.
