@@ -500,6 +500,8 @@ fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
     adopted
 }
 
+/// Cells of a row whose candidacy the plane growth of [`mark_planes`] tests at once (the bits of a word).
+const GROW_CHUNK: usize = 64;
 /// Cells per run of [`Grid::fill`]'s loops.
 const FILL_RUN: usize = 32;
 /// Cells per batch of [`Grid::surfels`].
@@ -634,35 +636,67 @@ fn mark_planes(
     // the depth tolerance of the plane's least-squares fit with a normal within [`PLANE_GROW_DEG`] of it; a
     // raster sweep and a reverse sweep, [`PLANE_GROW_SWEEPS`] times.
     let cos_grow = libm::cosf(PLANE_GROW_DEG.to_radians());
+    // (A cell index wrapped below 0 or past the grid names no colour word.)
+    let flagged = |colours: &[u16], j: usize| {
+        colours.get(j.wrapping_mul(2).wrapping_add(1)).is_some_and(|&b| b & PLANE_FLAG != 0)
+    };
     for pass in 0..2 * PLANE_GROW_SWEEPS {
-        sweep(grid.cols, grid.rows, pass % 2 == 1, |i, cx, cy| {
-            if colours.get(2 * i + 1).is_none_or(|&b| b & PLANE_FLAG != 0) {
-                return;
+        let reverse = pass % 2 == 1;
+        // The sweep visits only the cells that can join: not a plane's, with a plane's cell among the neighbours
+        // on its surface. They are found [`GROW_CHUNK`] cells of a row at a time as the bits of a word, without a
+        // branch per cell, and visited in the sweep's order; a cell that joins makes the next one a candidate
+        // (the only neighbour still to come in this sweep whose test it changes: the row after is tested later,
+        // the row before is done).
+        for r in 0..grid.rows {
+            let cy = if reverse { grid.rows - 1 - r } else { r };
+            let chunks = grid.cols.div_ceil(GROW_CHUNK);
+            for c in 0..chunks {
+                let x0 = GROW_CHUNK * if reverse { chunks - 1 - c } else { c };
+                let len = GROW_CHUNK.min(grid.cols - x0);
+                let first = grid.index(x0, cy);
+                let open = |colours: &[u16], i: usize| !flagged(colours, i) && colours.get(2 * i + 1).is_some();
+                let mut candidates = 0u64;
+                for k in 0..len {
+                    let i = first + k;
+                    let on = grid.links.get(i).copied().unwrap_or(0);
+                    // (A neighbour on the cell's surface lies on the grid.)
+                    let next_to_plane = ((on & link::LEFT != 0) & flagged(colours, i.wrapping_sub(1)))
+                        | ((on & link::RIGHT != 0) & flagged(colours, i + 1))
+                        | ((on & link::UP != 0) & flagged(colours, i.wrapping_sub(grid.cols)))
+                        | ((on & link::DOWN != 0) & flagged(colours, i + grid.cols));
+                    candidates |= u64::from(open(colours, i) & next_to_plane) << k;
+                }
+                while candidates != 0 {
+                    let k =
+                        if reverse { 63 - candidates.leading_zeros() } else { candidates.trailing_zeros() } as usize;
+                    candidates &= !(1u64 << k);
+                    let (i, cx) = (first + k, x0 + k);
+                    let neighbours = four_neighbours(cx, cy);
+                    let Some((p, normal)) = grid.cached_surfel(cx, cy) else { continue };
+                    let tolerance = params.depth_tolerance(p[2]);
+                    let joined = neighbours.iter().enumerate().find_map(|(k, &(x, y))| {
+                        grid.on_surface(i, k).then_some(())?;
+                        let b = colours.get(2 * grid.index(x, y) + 1).copied().filter(|&b| b & PLANE_FLAG != 0)?;
+                        let plane = (b & !PLANE_FLAG) >> PLANE_SHIFT;
+                        let (centre, axis) = planes.get(plane as usize)?;
+                        let near = libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance
+                            && libm::fabsf(linalg::dot(*axis, normal)) >= cos_grow;
+                        near.then_some(plane)
+                    });
+                    let (Some(plane), Some(b)) = (joined, colours.get_mut(2 * i + 1)) else { continue };
+                    *b = (*b & 0xff) | PLANE_FLAG | plane << PLANE_SHIFT;
+                    marked += 1;
+                    // The next cell of the sweep in this chunk, when this cell lies on its surface.
+                    let (next, towards) =
+                        if reverse { (k.checked_sub(1), link::RIGHT) } else { (Some(k + 1), link::LEFT) };
+                    if let Some(n) = next.filter(|&n| n < len) {
+                        let j = first + n;
+                        let on = grid.links.get(j).is_some_and(|&w| w & towards != 0);
+                        candidates |= u64::from(on & open(colours, j)) << n;
+                    }
+                }
             }
-            // Only a neighbour on the cell's surface can take it in: a plane's cell among those, or nothing to do.
-            let neighbours = four_neighbours(cx, cy);
-            let flagged = |k: usize, &(x, y): &(usize, usize)| {
-                grid.on_surface(i, k) && colours.get(2 * grid.index(x, y) + 1).is_some_and(|&b| b & PLANE_FLAG != 0)
-            };
-            if !neighbours.iter().enumerate().any(|(k, xy)| flagged(k, xy)) {
-                return;
-            }
-            let Some((p, normal)) = grid.cached_surfel(cx, cy) else { return };
-            let tolerance = params.depth_tolerance(p[2]);
-            let joined = neighbours.iter().enumerate().find_map(|(k, &(x, y))| {
-                grid.on_surface(i, k).then_some(())?;
-                let b = colours.get(2 * grid.index(x, y) + 1).copied().filter(|&b| b & PLANE_FLAG != 0)?;
-                let plane = (b & !PLANE_FLAG) >> PLANE_SHIFT;
-                let (centre, axis) = planes.get(plane as usize)?;
-                let near = libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance
-                    && libm::fabsf(linalg::dot(*axis, normal)) >= cos_grow;
-                near.then_some(plane)
-            });
-            if let (Some(plane), Some(b)) = (joined, colours.get_mut(2 * i + 1)) {
-                *b = (*b & 0xff) | PLANE_FLAG | plane << PLANE_SHIFT;
-                marked += 1;
-            }
-        });
+        }
     }
     (marked, largest.map(|(_, up)| up))
 }
