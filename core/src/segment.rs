@@ -655,8 +655,15 @@ fn mark_planes(
                 let len = GROW_CHUNK.min(grid.cols - x0);
                 let first = grid.index(x0, cy);
                 let open = |colours: &[u16], i: usize| !flagged(colours, i) && colours.get(2 * i + 1).is_some();
+                // The cells of no plane first, then which of those have a plane's cell beside them.
+                let mut open_cells = 0u64;
+                for (k, rgb) in colours.get(2 * first..2 * (first + len)).unwrap_or(&[]).chunks_exact(2).enumerate() {
+                    open_cells |= u64::from(rgb.get(1).is_some_and(|&b| b & PLANE_FLAG == 0)) << k;
+                }
                 let mut candidates = 0u64;
-                for k in 0..len {
+                while open_cells != 0 {
+                    let k = open_cells.trailing_zeros() as usize;
+                    open_cells &= open_cells - 1;
                     let i = first + k;
                     let on = grid.links.get(i).copied().unwrap_or(0);
                     // (A neighbour on the cell's surface lies on the grid.)
@@ -664,7 +671,7 @@ fn mark_planes(
                         | ((on & link::RIGHT != 0) & flagged(colours, i + 1))
                         | ((on & link::UP != 0) & flagged(colours, i.wrapping_sub(grid.cols)))
                         | ((on & link::DOWN != 0) & flagged(colours, i + grid.cols));
-                    candidates |= u64::from(open(colours, i) & next_to_plane) << k;
+                    candidates |= u64::from(next_to_plane) << k;
                 }
                 while candidates != 0 {
                     let k =
