@@ -605,7 +605,7 @@ fn mark_planes(
 ) -> (u32, Option<Vec3>) {
     let n = grid.cols * grid.rows;
     let (Some(parents), Some(counts)) = (work.get_mut(..n), counts.get_mut(..n)) else { return (0, None) };
-    join_links(grid, parents, |_, _, bits| bits & link::COPLANAR != 0);
+    join_links(grid, parents, counts, |_, _, bits| bits & link::COPLANAR != 0);
     flatten(parents);
     components(grid, parents, counts, min_cells, candidates);
     // The planes (candidate slot k + 1 → plane index, in each candidate's `instance`).
@@ -723,22 +723,15 @@ fn for_each_link(grid: &Grid<'_>, mut f: impl FnMut(usize, usize, u16)) {
     }
 }
 
-/// Makes `parents` the union-find of the links for which `joins(a, b, bits)` holds (`a` a cell, `b` its right or
+/// Makes `parents` the union-find of the links for which `joins(a, b, bits)` holds (and each root's entry of `sizes`
+/// the number of its component's cells with a point, what [`components`] counts by) (`a` a cell, `b` its right or
 /// lower neighbour, both with a normal and no depth jump between them, `bits` the link's [`link`] bits at the
 /// right link's place): the sets [`for_each_link`] with a union per joining link would make, each under its
 /// lowest index. The cells are visited in raster order, each with its links from the left and from above: a cell
 /// has not been touched before its turn (every link points forward), so it starts as its own root and each link
 /// costs one find, not the two of a union.
 #[inline(never)]
-fn join_links(grid: &Grid<'_>, parents: &mut [u16], joins: impl Fn(usize, usize, u16) -> bool) {
-    // Hangs the higher of two roots under the lower; returns the lower.
-    let hang = |parents: &mut [u16], r: usize, root: usize| -> usize {
-        let (lo, hi) = if r < root { (r, root) } else { (root, r) };
-        if let Some(p) = parents.get_mut(hi) {
-            *p = lo as u16;
-        }
-        lo
-    };
+fn join_links(grid: &Grid<'_>, parents: &mut [u16], sizes: &mut [u16], joins: impl Fn(usize, usize, u16) -> bool) {
     // The root of the previous cell's set when its turn ended (nothing has changed it since): its left link
     // needs no find.
     let mut left_root = 0;
@@ -747,18 +740,21 @@ fn join_links(grid: &Grid<'_>, parents: &mut [u16], joins: impl Fn(usize, usize,
         if let Some(p) = parents.get_mut(b) {
             *p = b as u16;
         }
+        if let Some(size) = sizes.get_mut(b) {
+            *size = u16::from(grid.point(b).is_some());
+        }
         // The right link of a row's last cell has no NORMALS bit (its right neighbour is off the grid).
         let joined = |a: usize, bits: u16| bits & link::NORMALS != 0 && joins(a, b, bits);
         if let Some(a) = b.checked_sub(1) {
             if joined(a, grid.links.get(a).copied().unwrap_or(0)) {
-                root = hang(parents, left_root, root);
+                root = hang(parents, sizes, left_root, root);
             }
         }
         if let Some(a) = b.checked_sub(grid.cols) {
             if joined(a, grid.links.get(a).map_or(0, |&w| w >> link::DOWN_SHIFT)) {
                 let r = union_find::find(parents, a);
                 if r != root {
-                    root = hang(parents, r, root);
+                    root = hang(parents, sizes, r, root);
                 }
             }
         }
@@ -809,8 +805,9 @@ fn flatten(parents: &mut [u16]) {
 
 /// The components of the flattened `parents` that cover at least `min_cells` cells with a point, as `candidates`
 /// (the caller's: a candidate list is 7.7 KB, which a returned value would copy on the Cortex-M7's stack) with
-/// their points' moments and box; returns how many found no room. `counts` (one u16 per cell) ends with each
-/// candidate's root holding its index + 1 (0 elsewhere).
+/// their points' moments and box; returns how many found no room. `counts` (one u16 per cell) holds each root's
+/// count of cells with a point (kept by the unions, [`join_links`]) and ends with each candidate's root holding
+/// its index + 1 (0 elsewhere).
 #[inline(never)]
 fn components(
     grid: &Grid<'_>,
@@ -820,14 +817,6 @@ fn components(
     candidates: &mut heapless::Vec<Candidate, MAX_CANDIDATES>,
 ) -> u32 {
     candidates.clear();
-    counts.fill(0);
-    for (i, &root) in parents.iter().enumerate() {
-        if grid.point(i).is_some() {
-            if let Some(c) = counts.get_mut(root as usize) {
-                *c = c.saturating_add(1);
-            }
-        }
-    }
     let mut truncated = 0;
     for (i, c) in counts.iter_mut().enumerate() {
         let big = u32::from(*c) >= min_cells.max(1) && parents.get(i).is_some_and(|&p| p as usize == i);
@@ -852,6 +841,28 @@ fn components(
         }
     }
     truncated
+}
+
+/// Hangs the higher of two different roots `a`, `b` of `parents` under the lower (as [`union_find::union`]), whose
+/// entry of `sizes` takes the other's; returns the lower.
+fn hang(parents: &mut [u16], sizes: &mut [u16], a: usize, b: usize) -> usize {
+    let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+    if let Some(p) = parents.get_mut(hi) {
+        *p = lo as u16;
+    }
+    let moved = sizes.get(hi).copied().unwrap_or(0);
+    if let Some(size) = sizes.get_mut(lo) {
+        *size = size.saturating_add(moved);
+    }
+    lo
+}
+
+/// [`union_find::union`] of `a` and `b` in `parents` that keeps `sizes` as [`join_links`] does.
+fn union_sized(parents: &mut [u16], sizes: &mut [u16], a: usize, b: usize) {
+    let (ra, rb) = (union_find::find(parents, a), union_find::find(parents, b));
+    if ra != rb {
+        hang(parents, sizes, ra, rb);
+    }
 }
 
 /// Whether a component with principal scales `sigmas` (metres, largest first) is flat (smallest at most
@@ -1199,7 +1210,8 @@ pub fn segment(
     // 2. Objects: neighbouring cells join when no depth jump separates them and their boundary is locally
     // convex or nearly flat (LCCP).
     // A plane's cells join only each other here (see below for an object's face).
-    join_links(&grid, parents, |ia, ib, bits| bits & link::JOINS != 0 && on_plane(ia) == on_plane(ib));
+    let counts = scratch.get_mut(..n).unwrap_or(&mut []);
+    join_links(&grid, parents, counts, |ia, ib, bits| bits & link::JOINS != 0 && on_plane(ia) == on_plane(ib));
     // A plane that meets a component along a mostly convex boundary is that object's face (a box's side, a
     // cabinet's front), not a support: it joins it. An object resting on a plane meets it along a concave crease
     // (a few links may read convex there: the majority decides, as in LCCP's segment-level convexity).
@@ -1233,13 +1245,12 @@ pub fn segment(
     });
     for b in &boundaries {
         if b.convex >= FACE_MIN_LINKS && 2 * b.convex > b.links {
-            union_find::union(parents, b.plane as usize, b.other as usize);
+            union_sized(parents, counts, b.plane as usize, b.other as usize);
         }
     }
     flatten(parents);
     // Components covering at least `seg_min_points` sampled points' worth of pixels become candidates;
     // `scratch[root]` then holds candidate index + 1.
-    let counts = scratch.get_mut(..n).unwrap_or(&mut []);
     let truncated = components(&grid, parents, counts, min_cells, &mut candidates);
     stats.truncated += truncated;
     stats.components = candidates.len() as u32;
