@@ -548,8 +548,11 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
     for cy in 0..grid.rows {
         let (here, below) = (row(cy), row(cy + 1));
         let words = links.get_mut(cy * grid.cols..(cy + 1) * grid.cols).unwrap_or(&mut []);
+        // Each cell's surfel, read once as the right neighbour and kept for its own turn.
+        let mut next = surfel(here, 0);
         for (cx, word) in words.iter_mut().enumerate() {
-            let Some((pa, na)) = surfel(here, cx) else { continue };
+            let right = surfel(here, cx + 1);
+            let Some((pa, na)) = core::mem::replace(&mut next, right) else { continue };
             let ca = colour(here, cx);
             // How a's surface meets b's (`b` its surfel, `cb` its colour).
             let meet = |(pb, nb): (Vec3, Vec3), cb: [i32; 3]| -> u16 {
@@ -574,7 +577,7 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
                     | (u16::from(joins) * link::JOINS)
             };
             if *word & link::RIGHT != 0 {
-                if let Some(b) = surfel(here, cx + 1) {
+                if let Some(b) = right {
                     *word |= meet(b, colour(here, cx + 1));
                 }
             }
