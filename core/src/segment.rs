@@ -609,7 +609,6 @@ fn mark_planes(
     let n = grid.cols * grid.rows;
     let (Some(parents), Some(counts)) = (work.get_mut(..n), counts.get_mut(..n)) else { return (0, None) };
     join_links(grid, parents, counts, |_, _, bits| bits & link::COPLANAR != 0);
-    flatten(parents);
     components(grid, parents, counts, min_cells, candidates);
     // The planes (candidate slot k + 1 → plane index, in each candidate's `instance`).
     let mut planes: heapless::Vec<(Vec3, Vec3), MAX_PLANES> = heapless::Vec::new();
@@ -788,25 +787,25 @@ fn four_neighbours(cx: usize, cy: usize) -> [(usize, usize); 4] {
     [(cx.wrapping_sub(1), cy), (cx + 1, cy), (cx, cy.wrapping_sub(1)), (cx, cy + 1)]
 }
 
-/// Points every cell of the union-find `parents` at its root (the lowest index of its component, so earlier
-/// entries are final).
-#[inline(never)]
-fn flatten(parents: &mut [u16]) {
-    for i in 0..parents.len() {
-        // Every parent lies below its cell (unions hang the higher root under the lower, finds halve paths
-        // downwards), so the parent's entry is already its root: one read instead of a find.
-        let p = parents.get(i).copied().unwrap_or(0) as usize;
-        let root = match parents.get(p) {
-            Some(&r) if p < i => r as usize,
-            _ => union_find::find(parents, i),
-        };
-        if let Some(p) = parents.get_mut(i) {
-            *p = root as u16;
-        }
+/// Points cell `i` of the union-find `parents` at its root (the lowest index of its component) and returns it,
+/// when every cell before it already points at its root: every parent lies below its cell (unions hang the
+/// higher root under the lower, finds halve paths downwards), so the parent's entry is the root — one read
+/// instead of a find.
+#[inline]
+fn flatten_entry(parents: &mut [u16], i: usize) -> usize {
+    let p = parents.get(i).copied().unwrap_or(0) as usize;
+    let root = match parents.get(p) {
+        Some(&r) if p < i => r as usize,
+        _ => union_find::find(parents, i),
+    };
+    if let Some(x) = parents.get_mut(i) {
+        *x = root as u16;
     }
+    root
 }
 
-/// The components of the flattened `parents` that cover at least `min_cells` cells with a point, as `candidates`
+/// The components of the union-find `parents` (flattened on the way: each cell ends pointing at its root) that
+/// cover at least `min_cells` cells with a point, as `candidates`
 /// (the caller's: a candidate list is 7.7 KB, which a returned value would copy on the Cortex-M7's stack) with
 /// their points' moments and box; returns how many found no room. `counts` (one u16 per cell) holds each root's
 /// count of cells with a point (kept by the unions, [`join_links`]) and ends with each candidate's root holding
@@ -814,7 +813,7 @@ fn flatten(parents: &mut [u16]) {
 #[inline(never)]
 fn components(
     grid: &Grid<'_>,
-    parents: &[u16],
+    parents: &mut [u16],
     counts: &mut [u16],
     min_cells: u32,
     candidates: &mut heapless::Vec<Candidate, MAX_CANDIDATES>,
@@ -834,10 +833,11 @@ fn components(
             }
         }
     }
+    // The moments, flattening `parents` on the way (each cell then points at its root).
     for i in 0..parents.len() {
-        if let (Some(c), Some(p)) =
-            (candidate_of(parents, counts, i).and_then(|k| candidates.get_mut(k)), grid.point(i))
-        {
+        let root = flatten_entry(parents, i);
+        let candidate = counts.get(root).and_then(|&slot| (slot as usize).checked_sub(1));
+        if let (Some(c), Some(p)) = (candidate.and_then(|k| candidates.get_mut(k)), grid.point(i)) {
             c.moments.add(p, 1.0);
             c.lo = linalg::min_elem(c.lo, p);
             c.hi = linalg::max_elem(c.hi, p);
@@ -1251,7 +1251,6 @@ pub fn segment(
             union_sized(parents, counts, b.plane as usize, b.other as usize);
         }
     }
-    flatten(parents);
     // Components covering at least `seg_min_points` sampled points' worth of pixels become candidates;
     // `scratch[root]` then holds candidate index + 1.
     let truncated = components(&grid, parents, counts, min_cells, &mut candidates);
