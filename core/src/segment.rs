@@ -820,21 +820,23 @@ fn components(
 ) -> u32 {
     candidates.clear();
     let mut truncated = 0;
-    for (i, c) in counts.iter_mut().enumerate() {
-        let big = u32::from(*c) >= min_cells.max(1) && parents.get(i).is_some_and(|&p| p as usize == i);
-        *c = 0;
-        if big {
-            let first = grid.point(i).unwrap_or([0.0; 3]);
-            let fresh = Candidate { moments: linalg::Moments::about(first), lo: first, hi: first, instance: 0 };
-            if candidates.push(fresh).is_ok() {
-                *c = candidates.len() as u16;
-            } else {
-                truncated += 1;
+    // One pass in cell order: a root (its component's lowest cell) comes before the rest of its component, so
+    // each root's candidate is made before its cells' points are added; `parents` is flattened on the way (each
+    // cell then points at its root).
+    for i in 0..parents.len() {
+        if let Some(c) = counts.get_mut(i) {
+            let big = u32::from(*c) >= min_cells.max(1) && parents.get(i).is_some_and(|&p| p as usize == i);
+            *c = 0;
+            if big {
+                let first = grid.point(i).unwrap_or([0.0; 3]);
+                let fresh = Candidate { moments: linalg::Moments::about(first), lo: first, hi: first, instance: 0 };
+                if candidates.push(fresh).is_ok() {
+                    *c = candidates.len() as u16;
+                } else {
+                    truncated += 1;
+                }
             }
         }
-    }
-    // The moments, flattening `parents` on the way (each cell then points at its root).
-    for i in 0..parents.len() {
         let root = flatten_entry(parents, i);
         let candidate = counts.get(root).and_then(|&slot| (slot as usize).checked_sub(1));
         if let (Some(c), Some(p)) = (candidate.and_then(|k| candidates.get_mut(k)), grid.point(i)) {
