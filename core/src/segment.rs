@@ -121,6 +121,9 @@ impl<'f> Grid<'f> {
         colours: &mut [u16],
     ) {
         let (w, h) = (frame.width as usize, frame.height as usize);
+        if cols == 0 || w == 0 {
+            return;
+        }
         let (lo, hi) = frame.raw_range(params);
         for (cy, (point_row, colour_row)) in points.chunks_mut(cols).zip(colours.chunks_mut(2 * cols)).enumerate() {
             if cy >= rows {
@@ -1352,6 +1355,20 @@ mod tests {
                 });
                 assert_eq!(k, n, "{cols} × {rows}, reverse {reverse}");
             }
+        }
+    }
+
+    #[test]
+    fn a_frame_without_pixels_segments_into_nothing() {
+        // `segment` is public: a frame that `Mapper::segment` would refuse must not panic either.
+        let params = Params::default();
+        let intrinsics = crate::frame::Intrinsics { fx: 525.0, fy: 525.0, cx: 0.0, cy: 0.0 };
+        for (width, height) in [(0u16, 0u16), (0, 5), (5, 0)] {
+            let frame = Frame { width, height, depth: &[], depth_scale: 1000.0, colour: &[], intrinsics, pose: None };
+            let (mut scratch, mut ids) = ([0u16; 64], [7u16; 64]);
+            let mut instances = [Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; 4];
+            let stats = segment(&frame, &mut scratch, &params, &mut ids, &mut instances, 1);
+            assert_eq!((stats.instances, stats.components), (0, 0), "{width} × {height}");
         }
     }
 
