@@ -686,8 +686,8 @@ fn mark_planes(
                     let neighbours = four_neighbours(cx, cy);
                     let Some((p, normal)) = grid.cached_surfel(cx, cy) else { continue };
                     let tolerance = params.depth_tolerance(p[2]);
-                    let joined = neighbours.iter().enumerate().find_map(|(k, &(x, y))| {
-                        grid.on_surface(i, k).then_some(())?;
+                    let joined = neighbours.iter().enumerate().find_map(|(direction, &(x, y))| {
+                        grid.on_surface(i, direction).then_some(())?;
                         let b = colours.get(2 * grid.index(x, y) + 1).copied().filter(|&b| b & PLANE_FLAG != 0)?;
                         let plane = (b & !PLANE_FLAG) >> PLANE_SHIFT;
                         let (centre, axis) = planes.get(plane as usize)?;
