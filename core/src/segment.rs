@@ -72,6 +72,12 @@ fn surface_jump(frame: &Frame<'_>, params: &Params, step: usize, z: f32) -> f32 
     3.0 * spacing + params.depth_tolerance(z)
 }
 
+/// [`surface_jump`] at raw depth `centre`, in raw depth units: how far a pixel's depth may lie from its cell's
+/// reference pixel and still be on its surface (the block means and the masks).
+fn raw_jump(frame: &Frame<'_>, params: &Params, step: usize, centre: u16) -> u32 {
+    (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32
+}
+
 /// A component that may be an object: its cells' moments and box (camera frame, metres), and its instance id.
 struct Candidate {
     moments: linalg::Moments,
@@ -144,7 +150,7 @@ impl<'f> Grid<'f> {
                 for (k, t) in tolerances.iter_mut().enumerate().take(points.len()) {
                     let (_, uc, _) = block_span(x0 + k, step, w);
                     let centre = centre_row.get(uc).copied().unwrap_or(0);
-                    *t = (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
+                    *t = raw_jump(frame, params, step, centre);
                 }
                 // Each cell's mean raw depth, 0 when its centre pixel is not valid.
                 let mut means = [0u16; FILL_RUN];
@@ -659,11 +665,12 @@ fn mark_planes(
                 let x0 = GROW_CHUNK * if reverse { chunks - 1 - c } else { c };
                 let len = GROW_CHUNK.min(grid.cols - x0);
                 let first = grid.index(x0, cy);
-                let open = |colours: &[u16], i: usize| !flagged(colours, i) && colours.get(2 * i + 1).is_some();
+                // A cell of no plane (its colour word without the flag).
+                let open = |rgb: Option<&u16>| rgb.is_some_and(|&b| b & PLANE_FLAG == 0);
                 // The cells of no plane first, then which of those have a plane's cell beside them.
                 let mut open_cells = 0u64;
                 for (k, rgb) in colours.get(2 * first..2 * (first + len)).unwrap_or(&[]).chunks_exact(2).enumerate() {
-                    open_cells |= u64::from(rgb.get(1).is_some_and(|&b| b & PLANE_FLAG == 0)) << k;
+                    open_cells |= u64::from(open(rgb.get(1))) << k;
                 }
                 let mut candidates = 0u64;
                 while open_cells != 0 {
@@ -704,7 +711,7 @@ fn mark_planes(
                     if let Some(n) = next.filter(|&n| n < len) {
                         let j = first + n;
                         let on = grid.links.get(j).is_some_and(|&w| w & towards != 0);
-                        candidates |= u64::from(on & open(colours, j)) << n;
+                        candidates |= u64::from(on & open(colours.get(2 * j + 1))) << n;
                     }
                 }
             }
@@ -1121,11 +1128,7 @@ fn write_masks(
             // its reference pixel when the centre has no depth (a holed cell that took an instance in
             // [`adopt_holed_cells`]); without a reference, no pixel takes the instance.
             let near = match reference_depth(frame, (lo, hi), (cx, cy), step) {
-                Some(centre) => {
-                    let tolerance =
-                        (surface_jump(frame, params, step, frame.metres(centre)) * frame.depth_scale) as u32;
-                    near_interval((lo, hi), centre, tolerance)
-                }
+                Some(centre) => near_interval((lo, hi), centre, raw_jump(frame, params, step, centre)),
                 None => NOWHERE,
             };
             for v in (v0..v1).rev() {

@@ -19,8 +19,8 @@
 //! Jacobian (`Superquadric::distance_shape_gradient`, no extra powers either), accumulated point by point into
 //! JᵀJ and Jᵀr (no Jacobian is stored), damping λ·(diag(JᵀJ) + 10⁻⁹), λ ÷ 3 on success and × 10 on failure,
 //! parameters clamped to their bounds (ε ∈ [0.1, 1.9], every scale ≥ 0.005 m) after each step; the first
-//! acceptable one wins. A warm refit from a track's state ([`refine`]) is finished the same way. Powers go through [`fastmath`], each logarithm taken once per point and model (`Powers`
-//! keeps them for the gradients).
+//! acceptable one wins. A warm refit from a track's state ([`refine`]) is finished the same way. Powers go
+//! through [`fastmath`], each logarithm taken once per point and model (`Powers` keeps them for the gradients).
 //!
 //! **Size prior.** Only the camera-facing half of an object is seen, so a superquadric that extends further
 //! away from the camera explains the points just as well. LM therefore minimises Σ e² + w · Σ a_k²
@@ -134,6 +134,12 @@ struct ShapeDerivatives {
 /// target; the Cortex-M7 runs them one by one).
 pub(crate) const LANES: usize = 4;
 
+/// The weighted residual r·√‖l‖ of [`Superquadric::residual`] from H = F^ε1 at local coordinates `l`.
+#[inline]
+fn residual_from(h: f32, l: Vec3) -> f32 {
+    (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3))
+}
+
 /// Signed power sign(w)·|w|^e used by the parametric surface.
 #[inline]
 fn spow(w: f32, e: f32) -> f32 {
@@ -170,8 +176,7 @@ impl Superquadric {
     #[inline]
     pub fn residual(&self, p: Vec3) -> f32 {
         let l = self.local(p);
-        let h = fastmath::pow(self.implicit(l), self.eps[0]);
-        (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3))
+        residual_from(fastmath::pow(self.implicit(l), self.eps[0]), l)
     }
 
     /// E_sq over `points`: the mean of [`Superquadric::residual`]², from the batched powers (H = 2^(ε1·log2 F)
@@ -184,8 +189,7 @@ impl Superquadric {
         let e1 = self.eps[0];
         let mut sum = -0.0f32;
         self.for_each_powers(points, |l, pw| {
-            let h = fastmath::pow_log2(pw.log2_f, e1);
-            let r = (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3));
+            let r = residual_from(fastmath::pow_log2(pw.log2_f, e1), l);
             sum += r * r;
         });
         sum / points.len() as f32
@@ -1813,8 +1817,8 @@ fn levenberg_marquardt<const N: usize>(prob: &Problem<'_>, run: &mut Run, iterat
 }
 
 /// Relative decrease of the objective below which an accepted LM step ends the iterations. Measured against
-/// 10⁻⁴, together with the warm refits' free-front rounds on the screening points ([`refine`]), on redkitchen 0–299 with
-/// segmenter masks: `make bench`'s superquadric stage 10.3 → 9.5 ms per frame, 10.68 → 10.88 superquadrics per
+/// 10⁻⁴, together with the warm refits' free-front rounds on the screening points ([`refine`]), on redkitchen
+/// 0–299 with segmenter masks: `make bench`'s superquadric stage 10.3 → 9.5 ms per frame, 10.68 → 10.88 superquadrics per
 /// frame, G2R 0.0182 → 0.0184 m; the random-shape test still ≥ 90 % within 1 cm / 10 %.
 const CONVERGED_DECREASE: f32 = 1e-3;
 
