@@ -100,6 +100,12 @@ pub const DEPTH_TOLERANCE_MIN_M: f32 = 0.02;
 /// The depth tolerance is at least this many σ(z) of the sensor's axial noise ([`Params::depth_tolerance`]).
 pub const DEPTH_TOLERANCE_SIGMAS: f32 = 3.0;
 
+/// [`Params::sample_rate`]'s default: the paper's 15 % of the in-range pixels.
+pub const DEFAULT_SAMPLE_RATE: f32 = 0.15;
+/// [`Params::sample_seed`]'s default. With it and [`DEFAULT_SAMPLE_RATE`] the sample of the first
+/// [`crate::points::SAMPLE_TABLE_PIXELS`] pixels is read from a table made at compile time.
+pub const DEFAULT_SAMPLE_SEED: u32 = 0x6d32_736d;
+
 /// The mapping parameters Θ. `Params::default()` is the paper's setting.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -282,8 +288,8 @@ impl Default for Params {
             variant: Variant::Full,
             depth_min: 0.1,
             depth_max: 3.0,
-            sample_rate: 0.15,
-            sample_seed: 0x6d32_736d,
+            sample_rate: DEFAULT_SAMPLE_RATE,
+            sample_seed: DEFAULT_SAMPLE_SEED,
             voxel_resolution: 0.03,
             seed_resolution: 0.65,
             color_importance: 0.2,

@@ -3,10 +3,13 @@
 //! The sample is a pure function of (pixel index, seed): a pixel is kept when a 32-bit hash of its index falls
 //! below `sample_rate × 2³²`. No state is kept, so any later stage can visit exactly the same points again by
 //! re-reading the caller's depth buffer, and the result is the same on every machine.
+//! For the default seed and rate the
+//! sample of a 640 × 480 frame is also a table of bits made at compile time ([`SAMPLE_TABLE_PIXELS`]), which the
+//! Cortex-M7's passes read instead of hashing each pixel; the host hashes 32 pixels at a time in vector registers.
 
 use crate::frame::Frame;
 use crate::linalg::Vec3;
-use crate::params::Params;
+use crate::params::{Params, DEFAULT_SAMPLE_RATE, DEFAULT_SAMPLE_SEED};
 
 /// One sampled point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,7 +45,7 @@ impl Point {
 
 /// The 32-bit mixing function of the sampler ("lowbias32", a bijection with good avalanche).
 #[inline]
-pub fn mix32(mut x: u32) -> u32 {
+pub const fn mix32(mut x: u32) -> u32 {
     x ^= x >> 16;
     x = x.wrapping_mul(0x7feb_352d);
     x ^= x >> 15;
@@ -53,7 +56,7 @@ pub fn mix32(mut x: u32) -> u32 {
 
 /// Hash threshold for a sample rate: a pixel is kept when `mix32(..) < threshold` (as u64).
 #[inline]
-pub fn sample_threshold(rate: f32) -> u64 {
+pub const fn sample_threshold(rate: f32) -> u64 {
     let t = rate as f64 * 4_294_967_296.0;
     if t <= 0.0 {
         0
@@ -74,8 +77,9 @@ pub fn is_sampled(i: u32, seed: u32, threshold: u64) -> bool {
 /// then only its set bits are visited.
 const BLOCK: usize = 32;
 
-/// Whether the per-pixel loop goes by blocks: a win where the test vectorises (x86-64, AArch64). Elsewhere (the
-/// Cortex-M7) a branch per pixel is cheaper, since the hash is then skipped for pixels without valid depth.
+/// Whether the per-pixel loop hashes blocks ([`Walk::Blocks`]): a win where the test vectorises (x86-64,
+/// AArch64). Elsewhere (the Cortex-M7) the default sample is read from [`DEFAULT_SAMPLE`] ([`Walk::Table`]) and
+/// another goes a pixel at a time, hashing only pixels with a valid depth ([`Walk::Pixels`]).
 const BLOCKWISE: bool = cfg!(any(target_arch = "x86_64", target_arch = "aarch64"));
 
 /// Bit j of a block mask.
@@ -102,16 +106,71 @@ struct Sampler {
 }
 
 impl Sampler {
-    fn with(seed: u32, threshold: u64) -> Self {
-        let below = u32::try_from(threshold).unwrap_or(u32::MAX);
-        Sampler { mixed_seed: mix32(seed), below, all: threshold > u32::MAX as u64 }
+    const fn with(seed: u32, threshold: u64) -> Self {
+        let all = threshold > u32::MAX as u64;
+        let below = if all { u32::MAX } else { threshold as u32 };
+        Sampler { mixed_seed: mix32(seed), below, all }
     }
 
     /// Whether pixel index `i` is kept: `mix32(i ^ mix32(seed)) < threshold`.
     #[inline]
-    fn keeps(&self, i: u32) -> bool {
+    const fn keeps(&self, i: u32) -> bool {
         (mix32(i ^ self.mixed_seed) < self.below) | self.all
     }
+
+    /// Whether this is the sampler of the default seed and rate, whose sample [`DEFAULT_SAMPLE`] holds.
+    fn is_default(&self) -> bool {
+        let d = DEFAULT_SAMPLER;
+        (self.mixed_seed, self.below, self.all) == (d.mixed_seed, d.below, d.all)
+    }
+}
+
+/// The sampler of [`DEFAULT_SAMPLE_SEED`] and [`DEFAULT_SAMPLE_RATE`].
+const DEFAULT_SAMPLER: Sampler = Sampler::with(DEFAULT_SAMPLE_SEED, sample_threshold(DEFAULT_SAMPLE_RATE));
+
+/// Pixel indices whose default sample is read from a table of bits made at compile time (on the Cortex-M7): the
+/// whole of a 640 × 480 frame, or of any frame of as many pixels or fewer (the sample is keyed by pixel index).
+pub const SAMPLE_TABLE_PIXELS: usize = 640 * 480;
+
+/// Words of [`DEFAULT_SAMPLE`]: one more than the pixels fill, so that the 32 indices from any pixel index
+/// below [`SAMPLE_TABLE_PIXELS`] lie in it.
+const SAMPLE_TABLE_WORDS: usize = SAMPLE_TABLE_PIXELS / 32 + 1;
+
+/// The default sample ([`DEFAULT_SAMPLER`]) of the first [`SAMPLE_TABLE_WORDS`] × 32 pixel indices, made at
+/// compile time: bit j of word k says whether pixel index 32k + j is kept. 38 404 bytes of read-only data (flash
+/// on the Cortex-M7, not RAM). A pass over the pixels then reads one word per 32 pixels and visits only the
+/// kept ones, instead of hashing every pixel with a valid depth.
+static DEFAULT_SAMPLE: [u32; SAMPLE_TABLE_WORDS] = default_sample();
+
+/// [`DEFAULT_SAMPLE`]'s contents.
+#[allow(clippy::indexing_slicing)] // evaluated at compile time: an out-of-range index would fail the build
+#[allow(long_running_const_eval)] // 307 200 hashes
+const fn default_sample() -> [u32; SAMPLE_TABLE_WORDS] {
+    let mut table = [0u32; SAMPLE_TABLE_WORDS];
+    let mut k = 0;
+    while k < table.len() {
+        let mut j = 0;
+        while j < 32 {
+            if DEFAULT_SAMPLER.keeps((32 * k + j) as u32) {
+                table[k] |= 1 << j;
+            }
+            j += 1;
+        }
+        k += 1;
+    }
+    table
+}
+
+/// The default sample of pixel indices `base..base + 32` as the bits of a word (bit j: `base + j`), when they
+/// all lie in [`DEFAULT_SAMPLE`].
+#[inline]
+fn default_sample_word(base: usize) -> Option<u32> {
+    let (k, shift) = (base / 32, base % 32);
+    let low = *DEFAULT_SAMPLE.get(k)?;
+    if shift == 0 {
+        return Some(low);
+    }
+    Some((low >> shift) | (*DEFAULT_SAMPLE.get(k + 1)? << (32 - shift)))
 }
 
 /// Calls `f` for every sampled, in-range point of `frame`, in pixel order. The frame must have been validated.
@@ -152,8 +211,43 @@ impl PixelWindow {
 
 /// [`for_each_point`] restricted to the pixels of `window`: exactly the points of the whole-image pass that fall
 /// inside it, in the same order (the sample is keyed by pixel index).
-pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow, mut f: impl FnMut(&Point)) {
-    let sampled = Sampler::with(params.sample_seed, sample_threshold(params.sample_rate));
+pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow, f: impl FnMut(&Point)) {
+    let sampler = Sampler::with(params.sample_seed, sample_threshold(params.sample_rate));
+    // Where the keep test vectorises, hashing every pixel is as cheap as the table (measured: the table was
+    // 1–3 % slower on the host); elsewhere (the Cortex-M7) the table of the default sample saves the hash of
+    // every pixel with a valid depth (about 15 M instructions per cabinet frame).
+    let walk = if BLOCKWISE {
+        Walk::Blocks
+    } else if sampler.is_default() {
+        Walk::Table
+    } else {
+        Walk::Pixels
+    };
+    walk_points(frame, params, window, sampler, walk, f);
+}
+
+/// How a pass finds the kept pixels of a row: the same pixels, in the same order, each way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Walk {
+    /// The keep test of [`BLOCK`] pixels at a time computed without a branch into a bit mask, then its set bits.
+    Blocks,
+    /// The keep bits of [`BLOCK`] pixels at a time read from [`DEFAULT_SAMPLE`] (the default sample only), then
+    /// the range test of the kept pixels; a row the table does not cover goes [`Walk::Pixels`].
+    Table,
+    /// A branch per pixel: the range test, then the hash of a pixel in range.
+    Pixels,
+}
+
+/// [`for_each_point_in`] with the pixels found by `walk`; `sampler` is the sample of `params`.
+#[inline(always)]
+fn walk_points(
+    frame: &Frame<'_>,
+    params: &Params,
+    window: PixelWindow,
+    sampler: Sampler,
+    walk: Walk,
+    mut f: impl FnMut(&Point),
+) {
     let (lo, hi) = frame.raw_range(params);
     let w = frame.width as usize;
     let (u0, u1) = (window.u0 as usize, (window.u1 as usize).min(w.saturating_sub(1)));
@@ -170,27 +264,42 @@ pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow
             f(&Point::from_pixel(frame, u, v, raw, rgb));
         };
         let span = row.get(u0..=u1).unwrap_or(&[]);
-        if !BLOCKWISE {
-            let base = (v * w + u0) as u32;
-            for (j, &raw) in span.iter().enumerate() {
-                if raw >= lo && raw <= hi && sampled.keeps(base + j as u32) {
-                    emit(u0 + j);
+        // The table covers the row when it covers its last block (then it covers each of them).
+        let last_block = v * w + u0 + BLOCK * (span.len().saturating_sub(1) / BLOCK);
+        if walk == Walk::Table && default_sample_word(last_block).is_some() {
+            for (b, block) in span.chunks(BLOCK).enumerate() {
+                let first = u0 + b * BLOCK;
+                let word = default_sample_word(v * w + first).unwrap_or(0);
+                let mut mask = word & (u32::MAX >> (BLOCK - block.len()));
+                while mask != 0 {
+                    let j = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    if block.get(j).is_some_and(|&raw| raw >= lo && raw <= hi) {
+                        emit(first + j);
+                    }
                 }
             }
-            continue;
-        }
-        for (b, block) in span.chunks(BLOCK).enumerate() {
-            let first = u0 + b * BLOCK;
-            let base = (v * w + first) as u32;
-            let mut mask = 0u32;
-            for ((&raw, &bit), j) in block.iter().zip(&BLOCK_BITS).zip(0u32..) {
-                let keep = (raw >= lo) & (raw <= hi) & sampled.keeps(base + j);
-                mask |= bit & (keep as u32).wrapping_neg();
+        } else if walk == Walk::Blocks {
+            for (b, block) in span.chunks(BLOCK).enumerate() {
+                let first = u0 + b * BLOCK;
+                let base = (v * w + first) as u32;
+                let mut mask = 0u32;
+                for ((&raw, &bit), j) in block.iter().zip(&BLOCK_BITS).zip(0u32..) {
+                    let keep = (raw >= lo) & (raw <= hi) & sampler.keeps(base + j);
+                    mask |= bit & (keep as u32).wrapping_neg();
+                }
+                while mask != 0 {
+                    let u = first + mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    emit(u);
+                }
             }
-            while mask != 0 {
-                let u = first + mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                emit(u);
+        } else {
+            let base = (v * w + u0) as u32;
+            for (j, &raw) in span.iter().enumerate() {
+                if raw >= lo && raw <= hi && sampler.keeps(base + j as u32) {
+                    emit(u0 + j);
+                }
             }
         }
     }
@@ -270,6 +379,97 @@ mod tests {
                 n += 1;
             });
             assert_eq!(expected.next(), None, "{window:?}: the window's pass stopped early after {n} points");
+        }
+    }
+
+    #[test]
+    fn the_default_sample_table_is_the_hash() {
+        let d = Params::default();
+        assert!(Sampler::with(d.sample_seed, sample_threshold(d.sample_rate)).is_default());
+        assert!(!Sampler::with(d.sample_seed ^ 1, sample_threshold(d.sample_rate)).is_default());
+        assert!(!Sampler::with(d.sample_seed, sample_threshold(0.2)).is_default());
+        let t = sample_threshold(DEFAULT_SAMPLE_RATE);
+        let mut kept = 0;
+        for k in 0..SAMPLE_TABLE_WORDS {
+            let word = DEFAULT_SAMPLE.get(k).copied().unwrap_or(0);
+            for j in 0..32 {
+                let i = (32 * k + j) as u32;
+                assert_eq!(word >> j & 1 == 1, is_sampled(i, DEFAULT_SAMPLE_SEED, t), "pixel index {i}");
+                kept += (word >> j & 1) as usize;
+            }
+            // Any 32 indices from one in the table, as a word.
+            for shift in [0, 1, 17, 31] {
+                let base = 32 * k + shift;
+                let expected = (0..32)
+                    .fold(0u32, |m, j| m | u32::from(is_sampled((base + j) as u32, DEFAULT_SAMPLE_SEED, t)) << j);
+                let read = default_sample_word(base);
+                if base < SAMPLE_TABLE_PIXELS {
+                    assert_eq!(read, Some(expected), "from index {base}");
+                } else if let Some(word) = read {
+                    assert_eq!(word, expected, "from index {base}");
+                }
+            }
+        }
+        let rate = kept as f64 / (32 * SAMPLE_TABLE_WORDS) as f64;
+        assert!((rate - 0.15).abs() < 0.003, "rate {rate}");
+    }
+
+    /// The three ways of finding the kept pixels give the same points in the same order, with the default sample
+    /// and another, over windows of a frame larger than the table (its last rows go pixel by pixel).
+    #[test]
+    fn every_walk_visits_the_same_points() {
+        extern crate std;
+        use std::vec::Vec;
+        const W: usize = 643;
+        const H: usize = 481;
+        let depth: Vec<u16> = (0..W * H)
+            .map(|i| match (i * 7 + i / W) % 13 {
+                3 | 4 => 0,
+                7 => 9000,
+                k => 500 + (i % 97) as u16 * 20 + k as u16,
+            })
+            .collect();
+        let colour = std::vec![9u8; W * H * 3];
+        let frame = Frame {
+            width: W as u16,
+            height: H as u16,
+            depth: &depth,
+            depth_scale: 1000.0,
+            colour: &colour,
+            intrinsics: crate::frame::Intrinsics { fx: 500.0, fy: 500.0, cx: 321.0, cy: 240.0 },
+            pose: None,
+        };
+        let windows = [
+            PixelWindow::WHOLE,
+            PixelWindow { u0: 5, v0: 2, u1: 40, v1: 17 },
+            PixelWindow { u0: 31, v0: 470, u1: 642, v1: 480 },
+            PixelWindow { u0: 600, v0: 476, u1: 700, v1: 900 },
+            PixelWindow { u0: 0, v0: 477, u1: 0, v1: 477 },
+            PixelWindow::EMPTY,
+        ];
+        for params in [Params::default(), Params { sample_seed: 7, ..Params::default() }] {
+            let sampler = Sampler::with(params.sample_seed, sample_threshold(params.sample_rate));
+            let walks: &[Walk] = if sampler.is_default() {
+                &[Walk::Blocks, Walk::Table, Walk::Pixels]
+            } else {
+                &[Walk::Blocks, Walk::Pixels]
+            };
+            for window in windows {
+                let points = |walk: Walk| {
+                    let mut out = Vec::new();
+                    walk_points(&frame, &params, window, sampler, walk, |p| {
+                        out.push((p.u, p.v, p.xyz.map(f32::to_bits)))
+                    });
+                    out
+                };
+                let blocks = points(Walk::Blocks);
+                if window == PixelWindow::WHOLE {
+                    assert!(blocks.len() > 30_000 && blocks.iter().any(|p| (p.1 as usize) * W >= SAMPLE_TABLE_PIXELS));
+                }
+                for &walk in walks {
+                    assert_eq!(points(walk), blocks, "{walk:?} over {window:?}, seed {}", params.sample_seed);
+                }
+            }
         }
     }
 }
