@@ -10,6 +10,9 @@
 //!   and its normal and offset are averaged, weighted by occupied cells. Otherwise it starts a new world plane.
 //!   Cells outside the grid are counted, not drawn. (Drawing 2 × 2 points per frame cell instead grows the
 //!   boundary by up to a cell: measured on redkitchen, plane G2R 0.022 against 0.018 m.)
+//!   Two world planes that came to describe one surface (the same test between their accumulated planes, the
+//!   cells some frame hit standing in for a frame's; within [`JOIN_SHARED_OFFSETS`] offsets when they mostly
+//!   share those cells) join after each frame: the one with less support is drawn into the other.
 //! - **objects**: a frame superquadric (its track's smoothed state where the frame's points allow it) moved
 //!   into the world frame updates the world object of its track ([`crate::track`]). A track seen
 //!   for the first time adopts the world object of the same class whose centre lies within max(`d_max`, its
@@ -84,6 +87,10 @@ pub const EXPLAINED_M: f32 = 0.03;
 /// A frame plane joins a world plane only if its farthest cell lies within this many `world_plane_offset`s of
 /// it (centroid offset plus tilt times reach).
 pub const PLANE_BEND_OFFSETS: f32 = 3.0;
+/// Two world planes whose hit cells mostly coincide (at least half of the smaller one's) join when their
+/// surfaces lie within this many `world_plane_offset`s (see `WorldMap::join_planes`): one stretch of floor seen
+/// from poses a few centimetres apart (opaque surfaces that far apart cannot both be seen over the same cells).
+pub const JOIN_SHARED_OFFSETS: f32 = 2.0;
 /// A world object is shown once this many sightings in a row gave fits that agree ([`AGREEMENT`]): a fit that no
 /// later frame confirms stays out of the map (and leaves it after `track_max_missed` frames unseen), and so does
 /// a track whose fits jump between neighbours or between slices of an object.
@@ -262,6 +269,8 @@ pub struct WorldStats {
     pub planes_merged: u32,
     /// World planes created.
     pub planes_created: u32,
+    /// World planes drawn into another world plane of the same surface.
+    pub planes_joined: u32,
     /// Frame planes dropped: the plane pool was full.
     pub planes_dropped: u32,
     /// World planes whose shown normal and offset took a step.
@@ -404,6 +413,7 @@ impl<'s> WorldMap<'s> {
             Primitive::Sq(s) => self.add_object(&s, frame, params, &mut stats),
             Primitive::Gmm(g) => self.add_gaussian(&g, frame, params, &mut stats),
         });
+        self.join_planes(params, &mut stats);
         // Objects never confirmed and unseen for `track_max_missed` frames were passing fits: they leave (they
         // were never shown, so no delta mentions them).
         let mut i = 0;
@@ -431,6 +441,45 @@ impl<'s> WorldMap<'s> {
             }
         }
         Ok(stats)
+    }
+
+    /// Joins world planes that came to describe one surface ([`same_surface`]): the one with less support is
+    /// drawn into the other ([`draw_plane_into`]) and leaves the map. A frame plane joins the world plane it
+    /// agrees with best, so a first view whose fit was a few centimetres off, or a frame whose floor came in two
+    /// pieces, can start a second world plane of the same floor that the later frames then feed (the cabinet
+    /// with 2 of 6 other sample seeds: two floors 6 cm apart and R2G 0.061–0.071 m); once the two agree they
+    /// are one again. A frame joins at most as many pairs as there are planes; none when the removal list is
+    /// full.
+    #[inline(never)] // its cell copies stay out of the caller's frame (the Cortex-M7's stack)
+    fn join_planes(&mut self, params: &Params, stats: &mut WorldStats) {
+        let cos_min = libm::cosf(params.world_plane_angle_deg.to_radians());
+        let g = self.g_p;
+        for _ in 0..self.planes.len() {
+            let planes = self.planes.as_slice();
+            let mut pair = None;
+            'search: for (i, a) in planes.iter().enumerate() {
+                for (j, b) in planes.iter().enumerate().skip(i + 1) {
+                    // The one with more support keeps its grid (the earlier one on a tie).
+                    let (into, from) = if b.support > a.support { (j, i) } else { (i, j) };
+                    let (big, small) = if into == i { (a, b) } else { (b, a) };
+                    if same_surface(big, small, g, cos_min, params) {
+                        pair = Some((into, from));
+                        break 'search;
+                    }
+                }
+            }
+            let Some((into, from)) = pair else { return };
+            if !self.note_removal(KIND_PLANE, from) {
+                return;
+            }
+            let planes = self.planes.as_mut_slice();
+            let (lo, hi) = planes.split_at_mut(into.max(from));
+            let (Some(low), Some(high)) = (lo.get_mut(into.min(from)), hi.first_mut()) else { return };
+            let (into_plane, from_plane) = if into < from { (low, &*high) } else { (high, &*low) };
+            draw_plane_into(into_plane, from_plane, g);
+            remove_at(&mut self.planes, from);
+            stats.planes_joined += 1;
+        }
     }
 
     fn take_id(&mut self) -> u32 {
@@ -533,11 +582,7 @@ impl<'s> WorldMap<'s> {
                 let u = (p.cells.a0 as f32 + i as f32 + 0.5) * p.g_p;
                 let v = (p.cells.b0 as f32 + j as f32 + 0.5) * p.g_p;
                 let local = linalg::add(p.centroid, linalg::add(linalg::scale(fe1, u), linalg::scale(fe2, v)));
-                let q = linalg::sub(local, origin);
-                let a = linalg::floor_i32(linalg::dot(q, ge1) / g) + half;
-                let b = linalg::floor_i32(linalg::dot(q, ge2) / g) + half;
-                let inside = (0..WORLD_GRID as i32).contains(&a) && (0..WORLD_GRID as i32).contains(&b);
-                f(inside.then(|| b as usize * WORLD_GRID + a as usize));
+                f(grid_index((origin, ge1, ge2), g, local));
             })
         };
         // New cells join the pending list (once each) when an earlier frame has hit them too: a cell hit by one
@@ -1020,6 +1065,134 @@ fn publish_gaussian(w: &mut WorldGaussian, force: bool) {
     };
 }
 
+/// The bit index of the cell of the grid (`origin`, `e1`, `e2`) of `g`-metre cells that holds world point `x`
+/// (its projection onto the grid's plane), `None` outside the grid.
+fn grid_index((origin, e1, e2): (Vec3, Vec3, Vec3), g: f32, x: Vec3) -> Option<usize> {
+    let half = (WORLD_GRID / 2) as i32;
+    let q = linalg::sub(x, origin);
+    let a = linalg::floor_i32(linalg::dot(q, e1) / g) + half;
+    let b = linalg::floor_i32(linalg::dot(q, e2) / g) + half;
+    let inside = (0..WORLD_GRID as i32).contains(&a) && (0..WORLD_GRID as i32).contains(&b);
+    inside.then(|| b as usize * WORLD_GRID + a as usize)
+}
+
+/// The centre of cell `k` (a bit index) of world plane `p`'s shown grid of `g`-metre cells, world frame.
+fn cell_centre(p: &WorldPlane, g: f32, k: usize) -> Vec3 {
+    let half = (WORLD_GRID / 2) as f32;
+    let (a, b) = ((k % WORLD_GRID) as f32 + 0.5 - half, (k / WORLD_GRID) as f32 + 0.5 - half);
+    linalg::add(p.origin, linalg::add(linalg::scale(p.e1, a * g), linalg::scale(p.e2, b * g)))
+}
+
+/// Calls `f(k)` for every set bit `k` of a world plane's bitmap.
+fn for_each_bit(bits: &[u8; WORLD_GRID_BYTES], mut f: impl FnMut(usize)) {
+    for (byte, &b) in bits.iter().enumerate() {
+        let mut b = b;
+        while b != 0 {
+            f(8 * byte + b.trailing_zeros() as usize);
+            b &= b - 1;
+        }
+    }
+}
+
+/// Whether world plane `small` describes the surface of world plane `big`, as a frame plane must to join a
+/// world plane ([`WorldMap::add_plane`]'s test, with the cells some frame hit standing in for a frame's cells):
+/// normals within `cos_min`, the centroid of its hit cells (on its accumulated plane) within `world_plane_offset`
+/// of `big`'s accumulated plane, or within [`JOIN_SHARED_OFFSETS`] offsets when at least half of its hit cells lie
+/// on cells `big` has hit, and its far cells within [`PLANE_BEND_OFFSETS`] offsets; and they touch (a hit cell
+/// in common).
+fn same_surface(big: &WorldPlane, small: &WorldPlane, g: f32, cos_min: f32, params: &Params) -> bool {
+    if libm::fabsf(linalg::dot(big.acc_normal, small.acc_normal)) < cos_min {
+        return false;
+    }
+    let (mut sum, mut n, mut shared) = ([0.0f32; 3], 0u32, 0u32);
+    let grid = (big.origin, big.e1, big.e2);
+    for_each_bit(&small.seen, |k| {
+        let x = cell_centre(small, g, k);
+        sum = linalg::add(sum, x);
+        n += 1;
+        shared += u32::from(grid_index(grid, g, x).is_some_and(|i| bit(&big.seen, i)));
+    });
+    if shared == 0 {
+        return false;
+    }
+    let gate = if 2 * shared >= n { JOIN_SHARED_OFFSETS } else { 1.0 } * params.world_plane_offset;
+    // The hit cells' centroid on the shown plane, and on the accumulated one.
+    let shown = linalg::scale(sum, 1.0 / n as f32);
+    let c =
+        linalg::add(shown, linalg::scale(small.acc_normal, small.acc_offset - linalg::dot(small.acc_normal, shown)));
+    let mut reach = 0.0f32;
+    for_each_bit(&small.seen, |k| reach = reach.max(linalg::norm(linalg::sub(cell_centre(small, g, k), shown))));
+    let off = libm::fabsf(linalg::dot(big.acc_normal, c) - big.acc_offset);
+    let bend = linalg::norm(linalg::cross(big.acc_normal, small.acc_normal)) * reach;
+    off <= gate && off + bend <= PLANE_BEND_OFFSETS * params.world_plane_offset
+}
+
+/// Draws world plane `from` into world plane `into` (both of one surface, [`same_surface`]): support-weighted
+/// accumulated geometry as [`WorldMap::add_plane`] merges a frame plane, and its hit, pending and shown cells
+/// into `into`'s grid (the shown ones shown, holes filled).
+fn draw_plane_into(into: &mut WorldPlane, from: &WorldPlane, g: f32) {
+    let (wa, wb) = (into.support as f32, from.support.max(1) as f32);
+    let k = wb / (wa + wb);
+    let n = if linalg::dot(from.acc_normal, into.acc_normal) < 0.0 {
+        linalg::scale(from.acc_normal, -1.0)
+    } else {
+        from.acc_normal
+    };
+    // A point of `from`'s accumulated plane: its shown origin moved onto it.
+    let on_from = linalg::add(
+        from.origin,
+        linalg::scale(from.acc_normal, from.acc_offset - linalg::dot(from.acc_normal, from.origin)),
+    );
+    into.acc_normal =
+        linalg::normalize_or(linalg::add(linalg::scale(into.acc_normal, 1.0 - k), linalg::scale(n, k)), n);
+    into.acc_offset += (linalg::dot(into.acc_normal, on_from) - into.acc_offset) * k;
+    into.acc_thickness += (from.acc_thickness - into.acc_thickness) * k;
+    into.acc_ratio += (from.acc_ratio - into.acc_ratio) * k;
+    for (acc, x) in into.acc_colour.iter_mut().zip(from.acc_colour) {
+        *acc += (x - *acc) * k;
+    }
+    into.support = into.support.saturating_add(from.support);
+    into.last_frame = into.last_frame.max(from.last_frame);
+    let grid = (into.origin, into.e1, into.e2);
+    let mut clipped = 0u32;
+    for_each_bit(&from.seen, |k| match grid_index(grid, g, cell_centre(from, g, k)) {
+        Some(i) => {
+            set_bit(&mut into.seen, i);
+            if bit(&from.cells, k) {
+                set_bit(&mut into.cells, i);
+            }
+        }
+        None => clipped += 1,
+    });
+    for &k in from.pending.get(..from.pending_len as usize).unwrap_or(&[]) {
+        let Some(i) = grid_index(grid, g, cell_centre(from, g, k as usize)) else { continue };
+        let n = into.pending_len as usize;
+        if bit(&into.cells, i) || into.pending.get(..n).unwrap_or(&[]).contains(&(i as u16)) {
+            continue;
+        }
+        match into.pending.get_mut(n) {
+            Some(slot) => {
+                *slot = i as u16;
+                into.pending_len += 1;
+            }
+            None => set_bit(&mut into.cells, i),
+        }
+    }
+    fill_holes(&mut into.cells);
+    into.occupied = into.cells.iter().map(|b| b.count_ones()).sum();
+    let half = (WORLD_GRID / 2) as f32;
+    let mut reach = into.reach;
+    let pending = into.pending.get(..into.pending_len as usize).unwrap_or(&[]);
+    let mut far = |k: usize| {
+        let (a, b) = ((k % WORLD_GRID) as f32 + 0.5 - half, (k / WORLD_GRID) as f32 + 0.5 - half);
+        reach = reach.max(libm::sqrtf(a * a + b * b) * g);
+    };
+    for_each_bit(&into.cells, &mut far);
+    pending.iter().for_each(|&k| far(k as usize));
+    into.reach = reach;
+    into.clipped_cells = into.clipped_cells.saturating_add(from.clipped_cells).saturating_add(clipped);
+}
+
 /// Sets every unset cell of a world plane's bitmap that has at least three set 4-neighbours (judged on the
 /// bitmap as it was): the holes a frame grid drawn into a rotated world grid leaves, one cell centre per frame
 /// cell, without growing the boundary.
@@ -1257,6 +1430,48 @@ mod tests {
             .unwrap();
             out
         }
+    }
+
+    fn lifted(dy: f32) -> Pose {
+        Pose { rotation: linalg::IDENTITY, translation: [0.0, dy, 0.0] }
+    }
+
+    /// A floor whose second view lies 6 cm off the first (a pose a few centimetres off) starts a second world
+    /// plane; lying mostly over the same cells, the two are one surface and join. Beside it, 12 cm off, or over
+    /// other cells only partly shared, they stay two.
+    #[test]
+    fn two_world_planes_of_one_floor_join() {
+        let params = Params::default();
+        let run = |dy: f32, (i0, i1): (usize, usize)| {
+            let mut storage = bytemuck::zeroed_box::<Small>();
+            let mut world = WorldMap::new(&mut storage);
+            let (mut a, mut b) = ([0u8; 800], [0u8; 800]);
+            let p0 = floor(&mut a, 40, 50);
+            let p1 = floor(&mut b, i0, i1);
+            world.integrate(0, &identity(), &params, |f| f(&Primitive::Plane(p0))).unwrap();
+            let stats = world.integrate(1, &lifted(dy), &params, |f| f(&Primitive::Plane(p1))).unwrap();
+            let planes: Vec<WorldPlane> = world.planes().to_vec();
+            (stats, planes)
+        };
+        let (stats, planes) = run(0.06, (40, 50));
+        assert_eq!((stats.planes_created, stats.planes_joined), (1, 1), "{stats:?}");
+        assert_eq!(planes.len(), 1);
+        let p = planes[0];
+        // The first plane keeps its id and grid; the accumulated floor lies between the two views (equal support).
+        assert_eq!(p.id, 0);
+        let height = (p.acc_offset * p.acc_normal[1]).abs();
+        assert!((height - 1.03).abs() < 0.005, "accumulated floor at {height} m");
+        assert_eq!(p.occupied, 100, "the same 10 × 10 cells");
+        assert_eq!(p.support, 200);
+        // 12 cm apart: two surfaces.
+        let (stats, planes) = run(0.12, (40, 50));
+        assert_eq!((stats.planes_created, stats.planes_joined, planes.len()), (1, 0, 2));
+        // 6 cm apart over cells of which fewer than half are shared: the first view's gate (5 cm) holds.
+        let (stats, planes) = run(0.06, (46, 60));
+        assert_eq!((stats.planes_created, stats.planes_joined, planes.len()), (1, 0, 2));
+        // 4 cm apart: the second view joins the first as a frame plane does.
+        let (stats, planes) = run(0.04, (40, 50));
+        assert_eq!((stats.planes_merged, stats.planes_created, stats.planes_joined, planes.len()), (1, 0, 0, 1));
     }
 
     #[test]

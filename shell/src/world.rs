@@ -121,6 +121,8 @@ pub struct WorldFrameRecord {
     pub merged_planes: u32,
     /// World planes created.
     pub created_planes: u32,
+    /// World planes drawn into another world plane of the same surface.
+    pub joined_planes: u32,
     /// Frame Gaussians merged into world Gaussians.
     pub merged_gmms: u32,
     /// World Gaussians created.
@@ -287,6 +289,7 @@ impl<'s> WorldRun<'s> {
             delta_removals,
             merged_planes: stats.planes_merged,
             created_planes: stats.planes_created,
+            joined_planes: stats.planes_joined,
             merged_gmms: stats.gmms_merged,
             created_gmms: stats.gmms_created,
             evicted_gmms: stats.gmms_evicted,
