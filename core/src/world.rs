@@ -1474,6 +1474,33 @@ mod tests {
         assert_eq!((stats.planes_merged, stats.planes_created, stats.planes_joined, planes.len()), (1, 0, 0, 1));
     }
 
+    /// A world plane that was sent and then joins another leaves the receiver's map too, and the receiver holds
+    /// the sender's records.
+    #[test]
+    fn a_joined_plane_leaves_the_receivers_map_too() {
+        let params = Params::default();
+        let mut storage = bytemuck::zeroed_box::<Small>();
+        let mut world = WorldMap::new(&mut storage);
+        let mut rx = Receiver::default();
+        let (mut a, mut b, mut c) = ([0u8; 800], [0u8; 800], [0u8; 800]);
+        let (p0, p1, p2) = (floor(&mut a, 40, 50), floor(&mut b, 56, 66), floor(&mut c, 40, 50));
+        // Frame 0: the floor; frame 1: 6 cm lower, beside it (no cell shared: a second world plane, sent).
+        for (frame, pose, p) in [(0, identity(), p0), (1, lifted(0.06), p1)] {
+            let stats = world.integrate(frame, &pose, &params, |f| f(&Primitive::Plane(p))).unwrap();
+            assert_eq!(stats.planes_joined, 0);
+            rx.apply(&delta(&mut world));
+        }
+        assert_eq!(world.planes().len(), 2);
+        // Frame 2: the lower floor over the first one's cells; it feeds the second plane (nearer), which now
+        // shares all of the first one's cells and has more support: the first joins it.
+        let stats = world.integrate(2, &lifted(0.06), &params, |f| f(&Primitive::Plane(p2))).unwrap();
+        assert_eq!((stats.planes_merged, stats.planes_joined), (1, 1), "{stats:?}");
+        assert_eq!(world.planes().iter().map(|p| p.id).collect::<Vec<_>>(), [1]);
+        let h = rx.apply(&delta(&mut world));
+        assert_eq!(h.removals, 1, "the sent plane's removal");
+        assert_eq!(rx.world(), bytes(&world));
+    }
+
     #[test]
     fn a_plane_seen_from_two_places_is_one_world_plane_holding_both_views_cells() {
         let params = Params::default();
