@@ -2,10 +2,10 @@
 //!
 //! The sample is a pure function of (pixel index, seed): a pixel is kept when a 32-bit hash of its index falls
 //! below `sample_rate × 2³²`. No state is kept, so any later stage can visit exactly the same points again by
-//! re-reading the caller's depth buffer, and the result is the same on every machine.
-//! For the default seed and rate the
-//! sample of a 640 × 480 frame is also a table of bits made at compile time ([`SAMPLE_TABLE_PIXELS`]), which the
-//! Cortex-M7's passes read instead of hashing each pixel; the host hashes 32 pixels at a time in vector registers.
+//! re-reading the caller's depth buffer, and the result is the same on every machine. For the default seed and
+//! rate the sample of a 640 × 480 frame is also a table of bits made at compile time ([`SAMPLE_TABLE_PIXELS`]),
+//! which the Cortex-M7's passes read instead of hashing each pixel; the host hashes 32 pixels at a time in
+//! vector registers.
 
 use crate::frame::Frame;
 use crate::linalg::Vec3;
@@ -140,11 +140,11 @@ const SAMPLE_TABLE_WORDS: usize = SAMPLE_TABLE_PIXELS / 32 + 1;
 /// compile time: bit j of word k says whether pixel index 32k + j is kept. 38 404 bytes of read-only data (flash
 /// on the Cortex-M7, not RAM). A pass over the pixels then reads one word per 32 pixels and visits only the
 /// kept ones, instead of hashing every pixel with a valid depth.
+#[allow(long_running_const_eval)] // 307 232 hashes at compile time
 static DEFAULT_SAMPLE: [u32; SAMPLE_TABLE_WORDS] = default_sample();
 
 /// [`DEFAULT_SAMPLE`]'s contents.
 #[allow(clippy::indexing_slicing)] // evaluated at compile time: an out-of-range index would fail the build
-#[allow(long_running_const_eval)] // 307 200 hashes
 const fn default_sample() -> [u32; SAMPLE_TABLE_WORDS] {
     let mut table = [0u32; SAMPLE_TABLE_WORDS];
     let mut k = 0;

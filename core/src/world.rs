@@ -576,7 +576,6 @@ impl<'s> WorldMap<'s> {
         // are a step (PUBLISH_CELL_SHARE of the shown cells) or do not fit; then all are shown at once.
         let (fe1, fe2) = (linalg::column(&p.rotation, 0), linalg::column(&p.rotation, 1));
         let (origin, ge1, ge2, g) = (w.origin, w.e1, w.e2, self.g_p);
-        let half = (WORLD_GRID / 2) as i32;
         let for_each_cell = |f: &mut dyn FnMut(Option<usize>)| {
             p.cells.for_each_set(|i, j| {
                 let u = (p.cells.a0 as f32 + i as f32 + 0.5) * p.g_p;
@@ -602,8 +601,7 @@ impl<'s> WorldMap<'s> {
             if bit(&w.cells, k) || w.pending.get(..n).unwrap_or(&[]).contains(&(k as u16)) {
                 return;
             }
-            let (a, b) = ((k % WORLD_GRID) as f32 + 0.5 - half as f32, (k / WORLD_GRID) as f32 + 0.5 - half as f32);
-            reach = reach.max(libm::sqrtf(a * a + b * b) * g);
+            reach = reach.max(cell_reach(k, g));
             match w.pending.get_mut(n) {
                 Some(slot) => {
                     *slot = k as u16;
@@ -847,7 +845,6 @@ impl<'s> WorldMap<'s> {
         }
         let e = linalg::sym_eigen(*covariance);
         let cos_min = libm::cosf(params.world_plane_angle_deg.to_radians());
-        let half = (WORLD_GRID / 2) as i32;
         self.planes.as_slice().iter().any(|p| {
             let q = linalg::sub(mean, p.origin);
             if libm::fabsf(linalg::dot(q, p.normal)) > EXPLAINED_M
@@ -855,8 +852,7 @@ impl<'s> WorldMap<'s> {
             {
                 return false;
             }
-            let a = linalg::floor_i32(linalg::dot(q, p.e1) / self.g_p) + half;
-            let b = linalg::floor_i32(linalg::dot(q, p.e2) / self.g_p) + half;
+            let (a, b) = grid_cell((p.origin, p.e1, p.e2), self.g_p, mean);
             let pending = p.pending.get(..p.pending_len as usize).unwrap_or(&[]);
             (-1..=1).any(|db| {
                 (-1..=1).any(|da| {
@@ -1065,21 +1061,37 @@ fn publish_gaussian(w: &mut WorldGaussian, force: bool) {
     };
 }
 
-/// The bit index of the cell of the grid (`origin`, `e1`, `e2`) of `g`-metre cells that holds world point `x`
-/// (its projection onto the grid's plane), `None` outside the grid.
-fn grid_index((origin, e1, e2): (Vec3, Vec3, Vec3), g: f32, x: Vec3) -> Option<usize> {
+/// The column and row of the cell of the grid (`origin`, `e1`, `e2`) of `g`-metre cells that holds world point
+/// `x` (its projection onto the grid's plane); inside the grid when both lie in 0..[`WORLD_GRID`].
+fn grid_cell((origin, e1, e2): (Vec3, Vec3, Vec3), g: f32, x: Vec3) -> (i32, i32) {
     let half = (WORLD_GRID / 2) as i32;
     let q = linalg::sub(x, origin);
-    let a = linalg::floor_i32(linalg::dot(q, e1) / g) + half;
-    let b = linalg::floor_i32(linalg::dot(q, e2) / g) + half;
+    (linalg::floor_i32(linalg::dot(q, e1) / g) + half, linalg::floor_i32(linalg::dot(q, e2) / g) + half)
+}
+
+/// The bit index of the cell of the grid (`origin`, `e1`, `e2`) of `g`-metre cells that holds world point `x`
+/// (its projection onto the grid's plane), `None` outside the grid.
+fn grid_index(grid: (Vec3, Vec3, Vec3), g: f32, x: Vec3) -> Option<usize> {
+    let (a, b) = grid_cell(grid, g, x);
     let inside = (0..WORLD_GRID as i32).contains(&a) && (0..WORLD_GRID as i32).contains(&b);
     inside.then(|| b as usize * WORLD_GRID + a as usize)
 }
 
+/// The centre of cell `k` (a bit index) of a world grid in cells from the grid's origin, along e1 and e2.
+fn centred(k: usize) -> (f32, f32) {
+    let half = (WORLD_GRID / 2) as f32;
+    ((k % WORLD_GRID) as f32 + 0.5 - half, (k / WORLD_GRID) as f32 + 0.5 - half)
+}
+
+/// How far the centre of cell `k` (a bit index) of a world grid of `g`-metre cells lies from its origin, metres.
+fn cell_reach(k: usize, g: f32) -> f32 {
+    let (a, b) = centred(k);
+    libm::sqrtf(a * a + b * b) * g
+}
+
 /// The centre of cell `k` (a bit index) of world plane `p`'s shown grid of `g`-metre cells, world frame.
 fn cell_centre(p: &WorldPlane, g: f32, k: usize) -> Vec3 {
-    let half = (WORLD_GRID / 2) as f32;
-    let (a, b) = ((k % WORLD_GRID) as f32 + 0.5 - half, (k / WORLD_GRID) as f32 + 0.5 - half);
+    let (a, b) = centred(k);
     linalg::add(p.origin, linalg::add(linalg::scale(p.e1, a * g), linalg::scale(p.e2, b * g)))
 }
 
@@ -1132,7 +1144,7 @@ fn same_surface(big: &WorldPlane, small: &WorldPlane, g: f32, cos_min: f32, para
 /// into `into`'s grid (the shown ones shown, holes filled).
 fn draw_plane_into(into: &mut WorldPlane, from: &WorldPlane, g: f32) {
     let (wa, wb) = (into.support as f32, from.support.max(1) as f32);
-    let k = wb / (wa + wb);
+    let share = wb / (wa + wb);
     let n = if linalg::dot(from.acc_normal, into.acc_normal) < 0.0 {
         linalg::scale(from.acc_normal, -1.0)
     } else {
@@ -1144,12 +1156,12 @@ fn draw_plane_into(into: &mut WorldPlane, from: &WorldPlane, g: f32) {
         linalg::scale(from.acc_normal, from.acc_offset - linalg::dot(from.acc_normal, from.origin)),
     );
     into.acc_normal =
-        linalg::normalize_or(linalg::add(linalg::scale(into.acc_normal, 1.0 - k), linalg::scale(n, k)), n);
-    into.acc_offset += (linalg::dot(into.acc_normal, on_from) - into.acc_offset) * k;
-    into.acc_thickness += (from.acc_thickness - into.acc_thickness) * k;
-    into.acc_ratio += (from.acc_ratio - into.acc_ratio) * k;
+        linalg::normalize_or(linalg::add(linalg::scale(into.acc_normal, 1.0 - share), linalg::scale(n, share)), n);
+    into.acc_offset += (linalg::dot(into.acc_normal, on_from) - into.acc_offset) * share;
+    into.acc_thickness += (from.acc_thickness - into.acc_thickness) * share;
+    into.acc_ratio += (from.acc_ratio - into.acc_ratio) * share;
     for (acc, x) in into.acc_colour.iter_mut().zip(from.acc_colour) {
-        *acc += (x - *acc) * k;
+        *acc += (x - *acc) * share;
     }
     into.support = into.support.saturating_add(from.support);
     into.last_frame = into.last_frame.max(from.last_frame);
@@ -1180,15 +1192,11 @@ fn draw_plane_into(into: &mut WorldPlane, from: &WorldPlane, g: f32) {
     }
     fill_holes(&mut into.cells);
     into.occupied = into.cells.iter().map(|b| b.count_ones()).sum();
-    let half = (WORLD_GRID / 2) as f32;
     let mut reach = into.reach;
-    let pending = into.pending.get(..into.pending_len as usize).unwrap_or(&[]);
-    let mut far = |k: usize| {
-        let (a, b) = ((k % WORLD_GRID) as f32 + 0.5 - half, (k / WORLD_GRID) as f32 + 0.5 - half);
-        reach = reach.max(libm::sqrtf(a * a + b * b) * g);
-    };
-    for_each_bit(&into.cells, &mut far);
-    pending.iter().for_each(|&k| far(k as usize));
+    for_each_bit(&into.cells, |k| reach = reach.max(cell_reach(k, g)));
+    for &k in into.pending.get(..into.pending_len as usize).unwrap_or(&[]) {
+        reach = reach.max(cell_reach(k as usize, g));
+    }
     into.reach = reach;
     into.clipped_cells = into.clipped_cells.saturating_add(from.clipped_cells).saturating_add(clipped);
 }
@@ -1484,14 +1492,14 @@ mod tests {
         let mut rx = Receiver::default();
         let (mut a, mut b, mut c) = ([0u8; 800], [0u8; 800], [0u8; 800]);
         let (p0, p1, p2) = (floor(&mut a, 40, 50), floor(&mut b, 56, 66), floor(&mut c, 40, 50));
-        // Frame 0: the floor; frame 1: 6 cm lower, beside it (no cell shared: a second world plane, sent).
+        // Frame 0: the floor; frame 1: 6 cm off it, beside it (no cell shared: a second world plane, sent).
         for (frame, pose, p) in [(0, identity(), p0), (1, lifted(0.06), p1)] {
             let stats = world.integrate(frame, &pose, &params, |f| f(&Primitive::Plane(p))).unwrap();
             assert_eq!(stats.planes_joined, 0);
             rx.apply(&delta(&mut world));
         }
         assert_eq!(world.planes().len(), 2);
-        // Frame 2: the lower floor over the first one's cells; it feeds the second plane (nearer), which now
+        // Frame 2: the second floor over the first one's cells; it feeds the second plane (nearer), which now
         // shares all of the first one's cells and has more support: the first joins it.
         let stats = world.integrate(2, &lifted(0.06), &params, |f| f(&Primitive::Plane(p2))).unwrap();
         assert_eq!((stats.planes_merged, stats.planes_joined), (1, 1), "{stats:?}");
