@@ -309,6 +309,16 @@ fn walk_points(
 mod tests {
     use super::*;
 
+    /// A `w × h` frame of millimetre depths without a pose.
+    fn test_frame<'a>(
+        (w, h): (usize, usize),
+        depth: &'a [u16],
+        colour: &'a [u8],
+        intrinsics: crate::frame::Intrinsics,
+    ) -> Frame<'a> {
+        Frame { width: w as u16, height: h as u16, depth, depth_scale: 1000.0, colour, intrinsics, pose: None }
+    }
+
     #[test]
     fn sample_rate_is_respected_and_deterministic() {
         let t = sample_threshold(0.15);
@@ -343,15 +353,8 @@ mod tests {
             };
         }
         let colour = [7u8; W * H * 3];
-        let frame = Frame {
-            width: W as u16,
-            height: H as u16,
-            depth: &depth,
-            depth_scale: 1000.0,
-            colour: &colour,
-            intrinsics: crate::frame::Intrinsics { fx: 60.0, fy: 60.0, cx: 35.0, cy: 11.0 },
-            pose: None,
-        };
+        let frame =
+            test_frame((W, H), &depth, &colour, crate::frame::Intrinsics { fx: 60.0, fy: 60.0, cx: 35.0, cy: 11.0 });
         let params = Params { sample_rate: 0.4, ..Params::default() };
         let mut all = [(0u16, 0u16); W * H];
         let mut n_all = 0;
@@ -430,15 +433,12 @@ mod tests {
             })
             .collect();
         let colour = std::vec![9u8; W * H * 3];
-        let frame = Frame {
-            width: W as u16,
-            height: H as u16,
-            depth: &depth,
-            depth_scale: 1000.0,
-            colour: &colour,
-            intrinsics: crate::frame::Intrinsics { fx: 500.0, fy: 500.0, cx: 321.0, cy: 240.0 },
-            pose: None,
-        };
+        let frame = test_frame(
+            (W, H),
+            &depth,
+            &colour,
+            crate::frame::Intrinsics { fx: 500.0, fy: 500.0, cx: 321.0, cy: 240.0 },
+        );
         let windows = [
             PixelWindow::WHOLE,
             PixelWindow { u0: 5, v0: 2, u1: 40, v1: 17 },

@@ -381,8 +381,7 @@ mod link {
 #[inline]
 fn dequantised(q: &[u16]) -> Option<Vec3> {
     let &[a, b, c] = q else { return None };
-    const K: f32 = 1.0 / 32767.0;
-    let n = [a as i16 as f32 * K, b as i16 as f32 * K, c as i16 as f32 * K];
+    let n = [a, b, c].map(|x| crate::supervoxel::dequantise_unit(x as i16));
     (n != [0.0; 3]).then_some(n)
 }
 

@@ -102,8 +102,7 @@ impl Voxel {
 
     /// Unit normal (dequantised).
     pub fn unit_normal(&self) -> Vec3 {
-        let k = 1.0 / 32767.0;
-        [self.normal[0] as f32 * k, self.normal[1] as f32 * k, self.normal[2] as f32 * k]
+        self.normal.map(dequantise_unit)
     }
 }
 
@@ -639,6 +638,12 @@ fn set_normal(voxels: &mut [Voxel], i: usize, c: Vec3, m: &Moments) {
     if let Some(v) = voxels.get_mut(i) {
         v.normal = [quantise_unit(n[0]), quantise_unit(n[1]), quantise_unit(n[2])];
     }
+}
+
+/// A component stored by [`quantise_unit`], back in [−1, 1].
+#[inline]
+pub fn dequantise_unit(q: i16) -> f32 {
+    q as f32 * (1.0 / 32767.0)
 }
 
 /// A unit-vector component `x` (clamped to [−1, 1]) in units of 1/32767, rounded half away from zero: the same

@@ -555,16 +555,8 @@ impl<'s> WorldMap<'s> {
         let Some(w) = self.planes.get_mut(index) else { return };
         // Accumulate: support-weighted means, weighted by occupied cells (a map plane carries no point
         // count); the frame's normal turned to agree with the world's.
-        let (wa, wb) = (w.support as f32, p.cells.count().max(1) as f32);
-        let n = if linalg::dot(n, w.acc_normal) < 0.0 { linalg::scale(n, -1.0) } else { n };
-        let k = wb / (wa + wb);
-        w.acc_normal = linalg::normalize_or(linalg::add(linalg::scale(w.acc_normal, 1.0 - k), linalg::scale(n, k)), n);
-        w.acc_offset += (linalg::dot(w.acc_normal, c) - w.acc_offset) * k;
-        w.acc_thickness += (p.sigmas[2] - w.acc_thickness) * k;
-        w.acc_ratio += (p.eigen_ratio - w.acc_ratio) * k;
-        for (acc, x) in w.acc_colour.iter_mut().zip(p.colour) {
-            *acc += (x as f32 - *acc) * k;
-        }
+        let wb = p.cells.count().max(1) as f32;
+        accumulate(w, wb, (n, c), (p.sigmas[2], p.eigen_ratio, p.colour.map(|x| x as f32)));
         w.support = w.support.saturating_add(wb as u32);
         w.last_frame = frame;
         // A step of the geometry: the shown plane is more than PUBLISH_PLANE_M off the accumulated one
@@ -1061,6 +1053,26 @@ fn publish_gaussian(w: &mut WorldGaussian, force: bool) {
     };
 }
 
+/// Folds a plane of weight `weight` (occupied cells or support) into world plane `w`'s accumulated state, the
+/// support-weighted means against `w.support`: its normal (turned to agree with `w`'s) through `point`, and its
+/// thickness, λ2/λ0 and colour. The caller adds the support.
+fn accumulate(
+    w: &mut WorldPlane,
+    weight: f32,
+    (normal, point): (Vec3, Vec3),
+    (thickness, ratio, colour): (f32, f32, [f32; 3]),
+) {
+    let n = if linalg::dot(normal, w.acc_normal) < 0.0 { linalg::scale(normal, -1.0) } else { normal };
+    let k = weight / (w.support as f32 + weight);
+    w.acc_normal = linalg::normalize_or(linalg::add(linalg::scale(w.acc_normal, 1.0 - k), linalg::scale(n, k)), n);
+    w.acc_offset += (linalg::dot(w.acc_normal, point) - w.acc_offset) * k;
+    w.acc_thickness += (thickness - w.acc_thickness) * k;
+    w.acc_ratio += (ratio - w.acc_ratio) * k;
+    for (acc, x) in w.acc_colour.iter_mut().zip(colour) {
+        *acc += (x - *acc) * k;
+    }
+}
+
 /// The column and row of the cell of the grid (`origin`, `e1`, `e2`) of `g`-metre cells that holds world point
 /// `x` (its projection onto the grid's plane); inside the grid when both lie in 0..[`WORLD_GRID`].
 fn grid_cell((origin, e1, e2): (Vec3, Vec3, Vec3), g: f32, x: Vec3) -> (i32, i32) {
@@ -1143,26 +1155,13 @@ fn same_surface(big: &WorldPlane, small: &WorldPlane, g: f32, cos_min: f32, para
 /// accumulated geometry as [`WorldMap::add_plane`] merges a frame plane, and its hit, pending and shown cells
 /// into `into`'s grid (the shown ones shown, holes filled).
 fn draw_plane_into(into: &mut WorldPlane, from: &WorldPlane, g: f32) {
-    let (wa, wb) = (into.support as f32, from.support.max(1) as f32);
-    let share = wb / (wa + wb);
-    let n = if linalg::dot(from.acc_normal, into.acc_normal) < 0.0 {
-        linalg::scale(from.acc_normal, -1.0)
-    } else {
-        from.acc_normal
-    };
     // A point of `from`'s accumulated plane: its shown origin moved onto it.
     let on_from = linalg::add(
         from.origin,
         linalg::scale(from.acc_normal, from.acc_offset - linalg::dot(from.acc_normal, from.origin)),
     );
-    into.acc_normal =
-        linalg::normalize_or(linalg::add(linalg::scale(into.acc_normal, 1.0 - share), linalg::scale(n, share)), n);
-    into.acc_offset += (linalg::dot(into.acc_normal, on_from) - into.acc_offset) * share;
-    into.acc_thickness += (from.acc_thickness - into.acc_thickness) * share;
-    into.acc_ratio += (from.acc_ratio - into.acc_ratio) * share;
-    for (acc, x) in into.acc_colour.iter_mut().zip(from.acc_colour) {
-        *acc += (x - *acc) * share;
-    }
+    let shape = (from.acc_thickness, from.acc_ratio, from.acc_colour);
+    accumulate(into, from.support.max(1) as f32, (from.acc_normal, on_from), shape);
     into.support = into.support.saturating_add(from.support);
     into.last_frame = into.last_frame.max(from.last_frame);
     let grid = (into.origin, into.e1, into.e2);
