@@ -273,6 +273,30 @@ fn separates_close_range_objects_from_their_table() {
     assert!(value("r2g_rmse_m") <= 0.03, "R2G {:.3} m: something observed is not mapped", value("r2g_rmse_m"));
 }
 
+/// ycbv_0000's map-level adhesion with segmenter masks under the other sample seeds (`sample_seed` 1–6 through
+/// `--config`), not only the default's: at 0.55 m the crease between an object and the table and the foam
+/// brick's dark face leave bands of cells with noisy normals several cells wide, whose points, left to the
+/// table's residual Gaussians, made Gaussians shared with an object on some samples: 0.1, 0.6, 0.3, 0.8, 0.5,
+/// 0.3 per frame (mean 0.43) before such bands took the instance beside them (`segment::fill_creases`), now
+/// 0.0, 0.0, 0.1, 0.0, 0.0, 0.4 (the cases left: two of 13–25 samples on the other object). The 0.3 per
+/// frame, held on average over the samples, with room.
+#[test]
+fn close_range_adhesion_holds_over_the_sample_seeds() {
+    let Some(data) = common::shared_data("ycbv_0000") else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let mut adhesion = Vec::new();
+    for seed in 1..=6 {
+        let config = dir.path().join(format!("seed{seed}.json"));
+        std::fs::write(&config, format!("{{\"sample_seed\": {seed}}}")).unwrap();
+        let out = dir.path().join(format!("run{seed}"));
+        let s = common::run_ok(&data, &out, &["--segmenter", "geometric", "--config", config.to_str().unwrap()]);
+        adhesion.push(s["adhesion_map"].as_f64().expect("ycbv_0000 has gt/: adhesion is measured"));
+    }
+    let mean = adhesion.iter().sum::<f64>() / adhesion.len() as f64;
+    println!("ycbv_0000 map-level adhesion per sample seed: {adhesion:?}, mean {mean:.2}");
+    assert!(mean <= 0.2, "mean adhesion {mean:.2} per frame over the sample seeds: {adhesion:?}");
+}
+
 #[test]
 fn segmenting_between_frames_changes_no_map_and_gives_the_masks_mapping_uses() {
     // Frames 0..3 of the tabletop: one mapper maps them (no masks); another segments each

@@ -26,7 +26,10 @@
 //!    one's extent along the largest plane's normal, across the view and (as deep as it is wide) along it.
 //! 3. **Masks**: a cell of a component too small to be anything takes the instance of its neighbours on the
 //!    same surface when at least 3 of its 4 name it and none another (a hole of noisy normals inside an object
-//!    would leave its points to the table's Gaussians). A cell whose centre pixel is a depth hole (an object's
+//!    would leave its points to the table's Gaussians). Within 1 cm of an instance's cells (close range, where
+//!    a cell spans a few millimetres) one neighbour suffices when the cell continues its surface and lies on no
+//!    supporting plane beside it: the band of mixed normals along an object's crease with its table, several
+//!    cells wide there. A cell whose centre pixel is a depth hole (an object's
 //!    edge, a rim) has no point of its own: next to an object's cell it takes the instance of the neighbour on
 //!    whose tangent plane its first valid pixel nearest the centre lies (or none, when that is a plane's or
 //!    background cell). Every pixel with a valid depth on its cell's surface takes the cell's instance.
@@ -508,6 +511,9 @@ fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
     adopted
 }
 
+/// The supporting planes of one segmentation: each one's centroid and unit normal (camera frame, metres).
+type Planes = heapless::Vec<(Vec3, Vec3), MAX_PLANES>;
+
 /// Cells of a row whose candidacy the plane growth of [`mark_planes`] tests at once (the bits of a word).
 const GROW_CHUNK: usize = 64;
 /// Cells per run of [`Grid::fill`]'s loops.
@@ -602,8 +608,9 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
 /// neighbouring cells with no depth jump between them and normals within [`PLANE_ANGLE_DEG`] are joined (the
 /// union-find parents in `work`), and a component of at least `min_cells` cells that is flat (smallest σ at most
 /// `FLAT_RATIO` × the middle one) and wide (largest σ ≥ `seg_structure_sigma`) is a
-/// plane. `counts` (one u16 per cell) and `candidates` are scratch. Returns the cells marked and the normal of the plane with the
-/// most cells, turned towards the camera (the up direction where that plane is a floor or a table).
+/// plane. `counts` (one u16 per cell) and `candidates` are scratch; the planes (centroid, unit normal) are left
+/// in `planes`. Returns the cells marked and the normal of the plane with the most cells, turned towards the
+/// camera (the up direction where that plane is a floor or a table).
 #[inline(never)]
 fn mark_planes(
     grid: &Grid<'_>,
@@ -611,15 +618,16 @@ fn mark_planes(
     counts: &mut [u16],
     colours: &mut [u16],
     min_cells: u32,
-    params: &Params,
     candidates: &mut heapless::Vec<Candidate, MAX_CANDIDATES>,
+    planes: &mut Planes,
 ) -> (u32, Option<Vec3>) {
+    let params = grid.params;
     let n = grid.cols * grid.rows;
     let (Some(parents), Some(counts)) = (work.get_mut(..n), counts.get_mut(..n)) else { return (0, None) };
     join_links(grid, parents, counts, |_, _, bits| bits & link::COPLANAR != 0);
     components(grid, parents, counts, min_cells, candidates);
     // The planes (candidate slot k + 1 → plane index, in each candidate's `instance`).
-    let mut planes: heapless::Vec<(Vec3, Vec3), MAX_PLANES> = heapless::Vec::new();
+    planes.clear();
     let mut largest: Option<(f32, Vec3)> = None;
     for c in candidates.iter_mut() {
         let eigen = linalg::sym_eigen(c.moments.covariance());
@@ -892,7 +900,7 @@ const RIM_MIN_LINKS: u16 = 3;
 /// Most pairs of objects with links across gaps one segmentation weighs (more are counted in `truncated`).
 const MAX_RIM_PAIRS: usize = 64;
 // `join_insides` keeps which candidates are objects in a u128.
-const _: () = assert!(MAX_CANDIDATES <= 128);
+const _: () = assert!(MAX_CANDIDATES <= 128 && (MAX_CANDIDATES as u16) < FRESH);
 /// How far below an object's top a cell still lies on its rim ([`join_insides`]), metres.
 const RIM_BAND: f32 = 0.02;
 /// Slack of the inside test ([`join_insides`]), metres.
@@ -1039,13 +1047,177 @@ fn join_insides(
     }
 }
 
-/// Marks a cell of a component too small to be an instance while the masks are filled ([`segment`]).
-const FILL: u16 = u16::MAX;
+/// Marks a cell of a component too small to be an instance while the masks are filled ([`segment`]) (without
+/// the [`FRESH`] bit).
+const FILL: u16 = !FRESH;
 /// Least of a cell's four neighbours that must name the instance it takes: a hole inside an object, not a speck
 /// of the wall beside it (on room-scale frames the link tolerance spans several centimetres of depth).
 const FILL_MIN_NEIGHBOURS: usize = 3;
+/// How far (metres, in cell spacings) [`fill_creases`] grows an instance over such cells.
+const CREASE_REACH_M: f32 = 0.01;
 /// Pairs of raster sweeps that fill such cells from their neighbours.
 const FILL_SWEEPS: usize = 1;
+/// Most rounds of [`fill_creases`]: how many cells deep an instance grows over such cells.
+const CREASE_ROUNDS: usize = 4;
+/// Marks an instance a cell took in the current round of [`fill_creases`].
+const FRESH: u16 = 0x4000;
+
+/// Gives the cells still marked [`FILL`] in `instances` (each cell's instance) that lie within
+/// [`CREASE_REACH_M`] of an instance's cells the instance one neighbour on their surface names, in rounds of one
+/// cell (at most [`CREASE_ROUNDS`]; each reads the instances the round before left, so an instance grows by one
+/// cell a round): a cell takes an instance when its neighbours on its surface name no other, it lies on the
+/// tangent plane of one that names it (it continues its surface) and on no supporting plane of a neighbour
+/// (`planes`: a crease's cell on the table's side stays the table's), and the instance's box (`candidates`' `lo`,
+/// `hi` of its first candidate, which takes the others' first) stays within `seg_max_extent` with the cell's
+/// point. At close range the cells of a crease between an object and what it rests on (mixed normals, neither
+/// coplanar with the plane nor convex with the object) and a dark surface's dropouts lie in bands several cells
+/// wide, which the three neighbours of [`FILL_MIN_NEIGHBOURS`] do not fill; left out, their points made residual
+/// Gaussians shared with the table (ycbv_0000). At room scale a cell spans more than the reach, and the
+/// neighbours beside an object are often another surface within the link tolerance: nothing changes there.
+/// `work` (one u16 per cell) lists the cells to fill.
+#[inline(never)]
+fn fill_creases(
+    grid: &Grid<'_>,
+    colours: &[u16],
+    planes: &Planes,
+    instances: &mut [u16],
+    candidates: &mut [Candidate],
+    work: &mut [u16],
+) {
+    // Round r reaches the cells whose spacing (step × z / fx) is at most CREASE_REACH_M / r: z ≤ reach / r.
+    let reach = CREASE_REACH_M * grid.frame.intrinsics.fx / grid.step as f32;
+    // The cells to fill within reach, in raster order (a grid has at most u16::MAX cells).
+    let mut len = 0;
+    for (i, _) in instances.iter().enumerate().filter(|(_, &id)| id == FILL) {
+        if let (Some(w), true) = (work.get_mut(len), grid.point(i).is_some_and(|p| p[2] <= reach)) {
+            *w = i as u16;
+            len += 1;
+        }
+    }
+    if len == 0 {
+        return;
+    }
+    // Each instance's first candidate (ids ≤ the candidates, MAX_CANDIDATES ≤ 128 < FRESH), its box the union
+    // of its candidates' boxes.
+    let mut first = [u8::MAX; MAX_CANDIDATES + 1];
+    for k in 0..candidates.len() {
+        let Some(id) = candidates.get(k).map(|c| c.instance as usize).filter(|&id| id != 0) else { continue };
+        match first.get(id).copied() {
+            Some(u8::MAX) => {
+                if let Some(f) = first.get_mut(id) {
+                    *f = k as u8;
+                }
+            }
+            Some(f) => {
+                let (lo, hi) = candidates.get(k).map_or(([0.0; 3], [0.0; 3]), |c| (c.lo, c.hi));
+                if let Some(c) = candidates.get_mut(f as usize) {
+                    (c.lo, c.hi) = (linalg::min_elem(c.lo, lo), linalg::max_elem(c.hi, hi));
+                }
+            }
+            None => {}
+        }
+    }
+    for round in 1..=CREASE_ROUNDS {
+        let (mut kept, mut filled) = (0, false);
+        for w in 0..len {
+            let i = work.get(w).copied().unwrap_or(0) as usize;
+            match crease_instance(grid, colours, planes, instances, i, reach / round as f32) {
+                Crease::Takes(id, p) => {
+                    // No larger than an instance may be.
+                    let k = first.get(id as usize).copied().unwrap_or(u8::MAX) as usize;
+                    if let Some(c) = candidates.get_mut(k) {
+                        let (lo, hi) = (linalg::min_elem(c.lo, p), linalg::max_elem(c.hi, p));
+                        if linalg::norm(linalg::sub(hi, lo)) <= grid.params.seg_max_extent {
+                            (c.lo, c.hi) = (lo, hi);
+                            if let Some(x) = instances.get_mut(i) {
+                                *x = id | FRESH;
+                                filled = true;
+                            }
+                        }
+                    }
+                }
+                Crease::Waits => {
+                    if let Some(x) = work.get_mut(kept) {
+                        *x = i as u16;
+                        kept += 1;
+                    }
+                }
+                Crease::Never => {}
+            }
+        }
+        if !filled {
+            break;
+        }
+        len = kept;
+        // This round's instances count from the next.
+        for x in instances.iter_mut() {
+            *x &= !FRESH;
+        }
+    }
+}
+
+/// What a cell to fill does in a round of [`fill_creases`].
+enum Crease {
+    /// It takes this instance (its point with it).
+    Takes(u16, Vec3),
+    /// Not in this round; a neighbour on its surface is still to fill or was filled in this round.
+    Waits,
+    /// Not in this round or any later one.
+    Never,
+}
+
+/// What [`FILL`] cell `i` does in a round of [`fill_creases`] that reaches cells nearer than `reach` metres,
+/// from `instances` as the rounds before left them.
+fn crease_instance(
+    grid: &Grid<'_>,
+    colours: &[u16],
+    planes: &Planes,
+    instances: &[u16],
+    i: usize,
+    reach: f32,
+) -> Crease {
+    let Some(p) = grid.point(i).filter(|p| p[2] <= reach) else { return Crease::Never };
+    let (cx, cy) = (i % grid.cols.max(1), i / grid.cols.max(1));
+    let neighbours = four_neighbours(cx, cy);
+    let id_of = |j: usize| instances.get(j).copied().filter(|&id| id != 0 && id != FILL && id & FRESH == 0);
+    let open = || {
+        neighbours.iter().enumerate().any(|(k, &(x, y))| {
+            grid.on_surface(i, k) && instances.get(grid.index(x, y)).is_some_and(|&id| id == FILL || id & FRESH != 0)
+        })
+    };
+    let waits = || if open() { Crease::Waits } else { Crease::Never };
+    let tolerance = grid.params.depth_tolerance(p[2]);
+    let (mut named, mut unique, mut on_tangent) = (None, true, false);
+    for (k, (x, y)) in neighbours.into_iter().enumerate() {
+        let Some(id) = id_of(grid.index(x, y)).filter(|_| grid.on_surface(i, k)) else { continue };
+        unique &= named.is_none_or(|m| m == id);
+        named = Some(id);
+        if let Some((q, normal)) = grid.cached_surfel(x, y) {
+            on_tangent |= libm::fabsf(linalg::dot(normal, linalg::sub(p, q))) <= tolerance;
+        }
+    }
+    // Two instances beside it stay two; one whose surface it does not continue may be joined by another.
+    let id = match named {
+        Some(id) if unique && on_tangent => id,
+        Some(_) if unique => return waits(),
+        Some(_) => return Crease::Never,
+        None => return waits(),
+    };
+    // On a supporting plane of a neighbour (one of no instance, not an object's face) it is the crease's cell on
+    // the table's side.
+    let on_support = neighbours.into_iter().enumerate().any(|(k, (x, y))| {
+        let j = grid.index(x, y);
+        let support = colours.get(2 * j + 1).filter(|&&b| b & PLANE_FLAG != 0 && instances.get(j) == Some(&0));
+        let plane = support.and_then(|&b| planes.get(((b & !PLANE_FLAG) >> PLANE_SHIFT) as usize));
+        grid.on_surface(i, k)
+            && plane.is_some_and(|(centre, axis)| libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance)
+    });
+    if on_support {
+        Crease::Never
+    } else {
+        Crease::Takes(id, p)
+    }
+}
 
 /// The links between a plane's component and another component ([`segment`]).
 struct Boundary {
@@ -1213,8 +1385,9 @@ pub fn segment(
         (params.seg_min_points as f32 / params.sample_rate.max(1e-3) / (grid.step * grid.step) as f32) as u32;
     // One candidate list serves the planes' components and then the objects'.
     let mut candidates: heapless::Vec<Candidate, MAX_CANDIDATES> = heapless::Vec::new();
-    let (planes, up) = mark_planes(&grid, scratch, parents, colours, min_cells, params, &mut candidates);
-    stats.plane_cells = planes;
+    let mut planes = Planes::new();
+    let (marked, up) = mark_planes(&grid, scratch, parents, colours, min_cells, &mut candidates, &mut planes);
+    stats.plane_cells = marked;
     let colours = &*colours;
     let on_plane = |i: usize| colours.get(2 * i + 1).is_some_and(|&b| b & PLANE_FLAG != 0);
     // 2. Objects: neighbouring cells join when no depth jump separates them and their boundary is locally
@@ -1322,6 +1495,9 @@ pub fn segment(
             }
         });
     }
+    // At close range, the cells of a crease between an object and what it rests on, or of a dark surface's
+    // dropouts, lie in bands too wide for that: one neighbour naming an instance suffices there.
+    fill_creases(&grid, colours, &planes, parents, &mut candidates, counts);
     for x in parents.iter_mut() {
         *x = if *x == FILL { 0 } else { *x };
     }
@@ -1358,6 +1534,104 @@ mod tests {
                 assert_eq!(k, n, "{cols} × {rows}, reverse {reverse}");
             }
         }
+    }
+
+    const COLS: usize = 8;
+    const ROWS: usize = 6;
+    const CELLS: usize = COLS * ROWS;
+
+    /// A grid of [`COLS`] × [`ROWS`] cells of one surface facing the camera at `z` (every neighbour on it): its
+    /// points (5 mm apart), quantised normals and link words.
+    fn flat_cells(z: f32) -> ([Vec3; CELLS], [u16; 3 * CELLS], [u16; CELLS]) {
+        let points = core::array::from_fn(|i| [(i % COLS) as f32 * 0.005, (i / COLS) as f32 * 0.005, z]);
+        let normal = [0.0, 0.0, -1.0f32].map(|c| crate::supervoxel::quantise_unit(c) as u16);
+        let normals = core::array::from_fn(|k| normal[k % 3]);
+        let links = core::array::from_fn(|i| {
+            let (cx, cy) = (i % COLS, i / COLS);
+            (u16::from(cx > 0) * link::LEFT)
+                | (u16::from(cx + 1 < COLS) * link::RIGHT)
+                | (u16::from(cy > 0) * link::UP)
+                | (u16::from(cy + 1 < ROWS) * link::DOWN)
+        });
+        (points, normals, links)
+    }
+
+    #[test]
+    fn creases_fill_within_reach_from_one_instance_and_stop_at_a_support() {
+        let z = 0.5;
+        // fx 400: a 4-pixel cell spans 4 × 0.5 / 400 = 5 mm at 0.5 m, so two rounds reach the 10 mm of
+        // CREASE_REACH_M.
+        let intrinsics = crate::frame::Intrinsics { fx: 400.0, fy: 400.0, cx: 0.0, cy: 0.0 };
+        let frame =
+            Frame { width: 32, height: 24, depth: &[], depth_scale: 1000.0, colour: &[], intrinsics, pose: None };
+        let (mut points, normals, links) = flat_cells(z);
+        let candidate = |instance: u16, x0: f32| Candidate {
+            moments: linalg::Moments::default(),
+            lo: [x0, 0.0, z],
+            hi: [x0 + 0.005, 0.025, z],
+            instance,
+        };
+        let run = |points: &[Vec3; CELLS], colours: &[u16], planes: &Planes, instances: &mut [u16; CELLS], extent| {
+            let params = Params { seg_max_extent: extent, ..Params::default() };
+            let grid = Grid {
+                frame: &frame,
+                params: &params,
+                step: 4,
+                cols: COLS,
+                rows: ROWS,
+                points,
+                normals: &normals,
+                links: &links,
+            };
+            let mut candidates = [candidate(1, 0.0), candidate(2, 0.015)];
+            fill_creases(&grid, colours, planes, instances, &mut candidates, &mut [0u16; CELLS]);
+        };
+        let row = |instances: &[u16; CELLS], cy: usize| -> [u16; COLS] {
+            core::array::from_fn(|cx| instances[cy * COLS + cx])
+        };
+        let (f, no_colours, no_planes) = (FILL, [0u16; 2 * CELLS], Planes::new());
+        // Instance 1 in columns 0–1, the rest to fill: it grows by the two rounds that reach, no further.
+        let start: [u16; CELLS] = core::array::from_fn(|i| if i % COLS < 2 { 1 } else { FILL });
+        let mut grown = start;
+        run(&points, &no_colours, &no_planes, &mut grown, 1.5);
+        for cy in 0..ROWS {
+            assert_eq!(row(&grown, cy), [1, 1, 1, 1, f, f, f, f], "row {cy}");
+        }
+        // Instance 2 in column 3 as well: the cell between the two takes neither, instance 2 grows to the right.
+        let mut both = start;
+        for cy in 0..ROWS {
+            both[cy * COLS + 3] = 2;
+        }
+        run(&points, &no_colours, &no_planes, &mut both, 1.5);
+        assert_eq!(row(&both, 0), [1, 1, f, 2, 2, 2, f, f]);
+        // Twice as near, a cell spans half as much: four rounds reach, the most there are.
+        let (near_points, _, _) = flat_cells(0.25);
+        let mut near = start;
+        run(&near_points, &no_colours, &no_planes, &mut near, 1.5);
+        assert_eq!(row(&near, 0), [1, 1, 1, 1, 1, 1, f, f]);
+        // No larger than an instance may be: nothing grows past seg_max_extent.
+        let mut small = start;
+        run(&points, &no_colours, &no_planes, &mut small, 0.026);
+        assert_eq!(row(&small, 0), [1, 1, f, f, f, f, f, f]);
+        // A cell off the surface of the instance beside it (5 cm behind its tangent plane) is another surface.
+        points[2][2] = z + 0.05;
+        let mut off = start;
+        run(&points, &no_colours, &no_planes, &mut off, 1.5);
+        assert_eq!(row(&off, 0), [1, 1, f, f, f, f, f, f]);
+        assert_eq!(row(&off, 1), [1, 1, 1, 1, f, f, f, f]);
+        points[2][2] = z;
+        // The bottom row is a supporting plane through the cells (no instance): the cells beside it lie on it,
+        // the crease's side of the table, and stay.
+        let (mut colours, mut on_table) = (no_colours, start);
+        for cx in 0..COLS {
+            colours[2 * ((ROWS - 1) * COLS + cx) + 1] = PLANE_FLAG;
+            on_table[(ROWS - 1) * COLS + cx] = 0;
+        }
+        let mut planes = Planes::new();
+        assert!(planes.push(([0.0, 0.0, z], [0.0, 0.0, 1.0])).is_ok());
+        run(&points, &colours, &planes, &mut on_table, 1.5);
+        assert_eq!(row(&on_table, ROWS - 2), [1, 1, f, f, f, f, f, f]);
+        assert_eq!(row(&on_table, 0), [1, 1, 1, 1, f, f, f, f]);
     }
 
     #[test]
