@@ -1177,19 +1177,32 @@ fn crease_instance(
     reach: f32,
 ) -> Crease {
     let Some(p) = grid.point(i).filter(|p| p[2] <= reach) else { return Crease::Never };
-    let (cx, cy) = (i % grid.cols.max(1), i / grid.cols.max(1));
-    let neighbours = four_neighbours(cx, cy);
-    let id_of = |j: usize| instances.get(j).copied().filter(|&id| id != 0 && id != FILL && id & FRESH == 0);
-    let open = || {
-        neighbours.iter().enumerate().any(|(k, &(x, y))| {
-            grid.on_surface(i, k) && instances.get(grid.index(x, y)).is_some_and(|&id| id == FILL || id & FRESH != 0)
-        })
+    let cy = i / grid.cols.max(1);
+    let cx = i - cy * grid.cols;
+    // The neighbours and their indices (wrapped off the grid, where no link bit names them).
+    let on = grid.links.get(i).copied().unwrap_or(0);
+    let neighbours = four_neighbours(cx, cy).map(|(x, y)| (x, y, y.wrapping_mul(grid.cols).wrapping_add(x)));
+    let beside = |k: usize| on & (link::LEFT << k) != 0;
+    let id_at = |j: usize| instances.get(j).copied().unwrap_or(0);
+    let is_instance = |id: u16| id != 0 && id != FILL && id & FRESH == 0;
+    let waits = || {
+        let open = neighbours
+            .iter()
+            .enumerate()
+            .any(|(k, &(_, _, j))| beside(k) && (id_at(j) == FILL || id_at(j) & FRESH != 0));
+        if open {
+            Crease::Waits
+        } else {
+            Crease::Never
+        }
     };
-    let waits = || if open() { Crease::Waits } else { Crease::Never };
     let tolerance = grid.params.depth_tolerance(p[2]);
     let (mut named, mut unique, mut on_tangent) = (None, true, false);
-    for (k, (x, y)) in neighbours.into_iter().enumerate() {
-        let Some(id) = id_of(grid.index(x, y)).filter(|_| grid.on_surface(i, k)) else { continue };
+    for (k, &(x, y, j)) in neighbours.iter().enumerate() {
+        let id = id_at(j);
+        if !beside(k) || !is_instance(id) {
+            continue;
+        }
         unique &= named.is_none_or(|m| m == id);
         named = Some(id);
         if let Some((q, normal)) = grid.cached_surfel(x, y) {
@@ -1205,12 +1218,10 @@ fn crease_instance(
     };
     // On a supporting plane of a neighbour (one of no instance, not an object's face) it is the crease's cell on
     // the table's side.
-    let on_support = neighbours.into_iter().enumerate().any(|(k, (x, y))| {
-        let j = grid.index(x, y);
-        let support = colours.get(2 * j + 1).filter(|&&b| b & PLANE_FLAG != 0 && instances.get(j) == Some(&0));
+    let on_support = neighbours.iter().enumerate().filter(|&(k, _)| beside(k)).any(|(_, &(_, _, j))| {
+        let support = colours.get(2 * j + 1).filter(|&&b| b & PLANE_FLAG != 0 && id_at(j) == 0);
         let plane = support.and_then(|&b| planes.get(((b & !PLANE_FLAG) >> PLANE_SHIFT) as usize));
-        grid.on_surface(i, k)
-            && plane.is_some_and(|(centre, axis)| libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance)
+        plane.is_some_and(|(centre, axis)| libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance)
     });
     if on_support {
         Crease::Never
