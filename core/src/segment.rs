@@ -1053,7 +1053,8 @@ const FILL: u16 = !FRESH;
 /// Least of a cell's four neighbours that must name the instance it takes: a hole inside an object, not a speck
 /// of the wall beside it (on room-scale frames the link tolerance spans several centimetres of depth).
 const FILL_MIN_NEIGHBOURS: usize = 3;
-/// How far (metres, in cell spacings) [`fill_creases`] grows an instance over such cells.
+/// How far from an instance's cells [`fill_creases`] grows it over such cells, metres, counted in cell spacings
+/// (step · z / fx each).
 const CREASE_REACH_M: f32 = 0.01;
 /// Pairs of raster sweeps that fill such cells from their neighbours.
 const FILL_SWEEPS: usize = 1;
@@ -1074,7 +1075,7 @@ const FRESH: u16 = 0x4000;
 /// wide, which the three neighbours of [`FILL_MIN_NEIGHBOURS`] do not fill; left out, their points made residual
 /// Gaussians shared with the table (ycbv_0000). At room scale a cell spans more than the reach, and the
 /// neighbours beside an object are often another surface within the link tolerance: nothing changes there.
-/// `work` (one u16 per cell) lists the cells to fill.
+/// `work` (one u16 per cell) lists the cells to fill. Returns how many took an instance.
 #[inline(never)]
 fn fill_creases(
     grid: &Grid<'_>,
@@ -1083,7 +1084,7 @@ fn fill_creases(
     instances: &mut [u16],
     candidates: &mut [Candidate],
     work: &mut [u16],
-) {
+) -> u32 {
     // Round r reaches the cells whose spacing (step × z / fx) is at most CREASE_REACH_M / r: z ≤ reach / r.
     let reach = CREASE_REACH_M * grid.frame.intrinsics.fx / grid.step as f32;
     // The cells to fill within reach, in raster order (a grid has at most u16::MAX cells).
@@ -1095,7 +1096,7 @@ fn fill_creases(
         }
     }
     if len == 0 {
-        return;
+        return 0;
     }
     // Each instance's first candidate (ids ≤ the candidates, MAX_CANDIDATES ≤ 128 < FRESH), its box the union
     // of its candidates' boxes.
@@ -1117,6 +1118,7 @@ fn fill_creases(
             None => {}
         }
     }
+    let mut taken = 0;
     for round in 1..=CREASE_ROUNDS {
         let (mut kept, mut filled) = (0, false);
         for w in 0..len {
@@ -1132,6 +1134,7 @@ fn fill_creases(
                             if let Some(x) = instances.get_mut(i) {
                                 *x = id | FRESH;
                                 filled = true;
+                                taken += 1;
                             }
                         }
                     }
@@ -1154,6 +1157,7 @@ fn fill_creases(
             *x &= !FRESH;
         }
     }
+    taken
 }
 
 /// What a cell to fill does in a round of [`fill_creases`].
@@ -1356,6 +1360,9 @@ pub struct SegmentStats {
     pub insides_joined: u32,
     /// Cells without a point of their own that took a neighbour's instance (`adopt_holed_cells`).
     pub holed_cells_adopted: u32,
+    /// Cells of a close-range crease (or a dark surface's dropouts) that took the instance beside them
+    /// (`fill_creases`).
+    pub crease_cells_filled: u32,
 }
 
 /// Segments `frame` (depth only): writes the id image `ids` (one u16 per pixel, 0 = none; it is also the
@@ -1508,7 +1515,7 @@ pub fn segment(
     }
     // At close range, the cells of a crease between an object and what it rests on, or of a dark surface's
     // dropouts, lie in bands too wide for that: one neighbour naming an instance suffices there.
-    fill_creases(&grid, colours, &planes, parents, &mut candidates, counts);
+    stats.crease_cells_filled = fill_creases(&grid, colours, &planes, parents, &mut candidates, counts);
     for x in parents.iter_mut() {
         *x = if *x == FILL { 0 } else { *x };
     }
@@ -1595,7 +1602,7 @@ mod tests {
                 links: &links,
             };
             let mut candidates = [candidate(1, 0.0), candidate(2, 0.015)];
-            fill_creases(&grid, colours, planes, instances, &mut candidates, &mut [0u16; CELLS]);
+            fill_creases(&grid, colours, planes, instances, &mut candidates, &mut [0u16; CELLS])
         };
         let row = |instances: &[u16; CELLS], cy: usize| -> [u16; COLS] {
             core::array::from_fn(|cx| instances[cy * COLS + cx])
@@ -1604,7 +1611,7 @@ mod tests {
         // Instance 1 in columns 0–1, the rest to fill: it grows by the two rounds that reach, no further.
         let start: [u16; CELLS] = core::array::from_fn(|i| if i % COLS < 2 { 1 } else { FILL });
         let mut grown = start;
-        run(&points, &no_colours, &no_planes, &mut grown, 1.5);
+        assert_eq!(run(&points, &no_colours, &no_planes, &mut grown, 1.5), 2 * ROWS as u32);
         for cy in 0..ROWS {
             assert_eq!(row(&grown, cy), [1, 1, 1, 1, f, f, f, f], "row {cy}");
         }
