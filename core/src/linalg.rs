@@ -51,6 +51,12 @@ pub fn dot(a: Vec3, b: Vec3) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+/// The distance of `p` from the plane through `on` with unit normal `normal` (metres when they are).
+#[inline]
+pub fn plane_distance(p: Vec3, on: Vec3, normal: Vec3) -> f32 {
+    libm::fabsf(dot(normal, sub(p, on)))
+}
+
 /// a × b.
 #[inline]
 pub fn cross(a: Vec3, b: Vec3) -> Vec3 {

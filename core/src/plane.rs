@@ -175,7 +175,7 @@ impl Plane {
     /// ([`Params::depth_tolerance`]) of the plane through the centroid. Only such a point shows where the plane
     /// was seen, so only such points mark cells.
     pub fn is_on_plane(&self, p: Vec3, params: &Params) -> bool {
-        libm::fabsf(linalg::dot(linalg::sub(p, self.centroid), self.normal)) <= params.depth_tolerance(p[2])
+        linalg::plane_distance(p, self.centroid, self.normal) <= params.depth_tolerance(p[2])
     }
 
     fn occupy(&mut self, a: usize, b: usize) {

@@ -496,7 +496,7 @@ fn adopt_holed_cells(grid: &Grid<'_>, instances: &mut [u16]) -> u32 {
                 if libm::fabsf(q[2] - p[2]) > grid.jump(q[2]) {
                     continue;
                 }
-                let off = libm::fabsf(linalg::dot(normal, linalg::sub(p, q)));
+                let off = linalg::plane_distance(p, q, normal);
                 let Some(&instance) = instances.get(grid.index(x, y)) else { continue };
                 if off <= grid.params.depth_tolerance(p[2]) && best.is_none_or(|(b, _)| off < b) {
                     best = Some((off, instance));
@@ -705,7 +705,7 @@ fn mark_planes(
                         let b = colours.get(2 * grid.index(x, y) + 1).copied().filter(|&b| b & PLANE_FLAG != 0)?;
                         let plane = (b & !PLANE_FLAG) >> PLANE_SHIFT;
                         let (centre, axis) = planes.get(plane as usize)?;
-                        let near = libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance
+                        let near = linalg::plane_distance(p, *centre, *axis) <= tolerance
                             && libm::fabsf(linalg::dot(*axis, normal)) >= cos_grow;
                         near.then_some(plane)
                     });
@@ -1210,7 +1210,7 @@ fn crease_instance(
         unique &= named.is_none_or(|m| m == id);
         named = Some(id);
         if let Some((q, normal)) = grid.cached_surfel(x, y) {
-            on_tangent |= libm::fabsf(linalg::dot(normal, linalg::sub(p, q))) <= tolerance;
+            on_tangent |= linalg::plane_distance(p, q, normal) <= tolerance;
         }
     }
     // Two instances beside it stay two; one whose surface it does not continue may be joined by another.
@@ -1225,7 +1225,7 @@ fn crease_instance(
     let on_support = neighbours.iter().enumerate().filter(|&(k, _)| beside(k)).any(|(_, &(_, _, j))| {
         let support = colours.get(2 * j + 1).filter(|&&b| b & PLANE_FLAG != 0 && id_at(j) == 0);
         let plane = support.and_then(|&b| planes.get(((b & !PLANE_FLAG) >> PLANE_SHIFT) as usize));
-        plane.is_some_and(|(centre, axis)| libm::fabsf(linalg::dot(*axis, linalg::sub(p, *centre))) <= tolerance)
+        plane.is_some_and(|(centre, axis)| linalg::plane_distance(p, *centre, *axis) <= tolerance)
     });
     if on_support {
         Crease::Never
