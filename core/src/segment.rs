@@ -1120,7 +1120,7 @@ fn fill_creases(
     }
     let mut taken = 0;
     for round in 1..=CREASE_ROUNDS {
-        let (mut kept, mut filled) = (0, false);
+        let (mut kept, taken_before) = (0, taken);
         for w in 0..len {
             let i = work.get(w).copied().unwrap_or(0) as usize;
             match crease_instance(grid, colours, planes, instances, i, reach / round as f32) {
@@ -1133,7 +1133,6 @@ fn fill_creases(
                             (c.lo, c.hi) = (lo, hi);
                             if let Some(x) = instances.get_mut(i) {
                                 *x = id | FRESH;
-                                filled = true;
                                 taken += 1;
                             }
                         }
@@ -1148,7 +1147,7 @@ fn fill_creases(
                 Crease::Never => {}
             }
         }
-        if !filled {
+        if taken == taken_before {
             break;
         }
         len = kept;
@@ -1158,6 +1157,33 @@ fn fill_creases(
         }
     }
     taken
+}
+
+/// The instance the neighbours of cell `i` (column `cx`, row `cy`) on its surface name in `instances` (an id
+/// neither 0, [`FILL`] nor marked [`FRESH`]), whether they name no other, and how many name one; `naming(x, y)`
+/// is called with each neighbour that names one. The mask fill's sweeps ([`segment`]) and [`crease_instance`]
+/// both ask this.
+fn named_instance(
+    grid: &Grid<'_>,
+    instances: &[u16],
+    (i, cx, cy): (usize, usize, usize),
+    mut naming: impl FnMut(usize, usize),
+) -> (Option<u16>, bool, usize) {
+    let (mut named, mut unique, mut count) = (None, true, 0);
+    for (k, (x, y)) in four_neighbours(cx, cy).into_iter().enumerate() {
+        if !grid.on_surface(i, k) {
+            continue;
+        }
+        let Some(id) = instances.get(grid.index(x, y)).copied().filter(|&id| id != 0 && id != FILL && id & FRESH == 0)
+        else {
+            continue;
+        };
+        unique &= named.is_none_or(|m| m == id);
+        named = Some(id);
+        count += 1;
+        naming(x, y);
+    }
+    (named, unique, count)
 }
 
 /// What a cell to fill does in a round of [`fill_creases`].
@@ -1185,15 +1211,12 @@ fn crease_instance(
     let cx = i - cy * grid.cols;
     // The neighbours and their indices (wrapped off the grid, where no link bit names them).
     let on = grid.links.get(i).copied().unwrap_or(0);
-    let neighbours = four_neighbours(cx, cy).map(|(x, y)| (x, y, y.wrapping_mul(grid.cols).wrapping_add(x)));
+    let neighbours = four_neighbours(cx, cy).map(|(x, y)| y.wrapping_mul(grid.cols).wrapping_add(x));
     let beside = |k: usize| on & (link::LEFT << k) != 0;
     let id_at = |j: usize| instances.get(j).copied().unwrap_or(0);
-    let is_instance = |id: u16| id != 0 && id != FILL && id & FRESH == 0;
     let waits = || {
-        let open = neighbours
-            .iter()
-            .enumerate()
-            .any(|(k, &(_, _, j))| beside(k) && (id_at(j) == FILL || id_at(j) & FRESH != 0));
+        let open =
+            neighbours.iter().enumerate().any(|(k, &j)| beside(k) && (id_at(j) == FILL || id_at(j) & FRESH != 0));
         if open {
             Crease::Waits
         } else {
@@ -1201,18 +1224,12 @@ fn crease_instance(
         }
     };
     let tolerance = grid.params.depth_tolerance(p[2]);
-    let (mut named, mut unique, mut on_tangent) = (None, true, false);
-    for (k, &(x, y, j)) in neighbours.iter().enumerate() {
-        let id = id_at(j);
-        if !beside(k) || !is_instance(id) {
-            continue;
-        }
-        unique &= named.is_none_or(|m| m == id);
-        named = Some(id);
+    let mut on_tangent = false;
+    let (named, unique, _) = named_instance(grid, instances, (i, cx, cy), |x, y| {
         if let Some((q, normal)) = grid.cached_surfel(x, y) {
             on_tangent |= linalg::plane_distance(p, q, normal) <= tolerance;
         }
-    }
+    });
     // Two instances beside it stay two; one whose surface it does not continue may be joined by another.
     let id = match named {
         Some(id) if unique && on_tangent => id,
@@ -1222,7 +1239,7 @@ fn crease_instance(
     };
     // On a supporting plane of a neighbour (one of no instance, not an object's face) it is the crease's cell on
     // the table's side.
-    let on_support = neighbours.iter().enumerate().filter(|&(k, _)| beside(k)).any(|(_, &(_, _, j))| {
+    let on_support = neighbours.iter().enumerate().filter(|&(k, _)| beside(k)).any(|(_, &j)| {
         let support = colours.get(2 * j + 1).filter(|&&b| b & PLANE_FLAG != 0 && id_at(j) == 0);
         let plane = support.and_then(|&b| planes.get(((b & !PLANE_FLAG) >> PLANE_SHIFT) as usize));
         plane.is_some_and(|(centre, axis)| linalg::plane_distance(p, *centre, *axis) <= tolerance)
@@ -1496,18 +1513,7 @@ pub fn segment(
             if parents.get(i) != Some(&FILL) {
                 return;
             }
-            let mut named: Option<u16> = None;
-            let mut unique = true;
-            let mut naming = 0;
-            for (k, (x, y)) in four_neighbours(cx, cy).into_iter().enumerate() {
-                if !grid.on_surface(i, k) {
-                    continue;
-                }
-                let Some(&id) = parents.get(grid.index(x, y)).filter(|&&id| id != 0 && id != FILL) else { continue };
-                unique &= named.is_none_or(|m| m == id);
-                named = Some(id);
-                naming += 1;
-            }
+            let (named, unique, naming) = named_instance(&grid, parents, (i, cx, cy), |_, _| {});
             if let (Some(id), true, Some(x)) = (named, unique && naming >= FILL_MIN_NEIGHBOURS, parents.get_mut(i)) {
                 *x = id;
             }
