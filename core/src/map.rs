@@ -150,6 +150,11 @@ pub struct MapSq {
     pub score: f32,
     /// Track id.
     pub track: u16,
+    /// The camera saw only part of it in this frame: some of its camera-facing surface projects outside the
+    /// image, and the shape there is the fit's guess (a cupboard cut by the image border, fitted as a slab that
+    /// runs on past it). The world map takes no shape from such a view ([`crate::world`]). Not on the wire: a
+    /// decoded map has `false`.
+    pub partial: bool,
 }
 
 /// A GMM primitive of the map (paper §V-C): μ, Σ = R·diag(d²)·Rᵀ, N, colour and (a, ℓ, s, ρ).
@@ -371,7 +376,7 @@ mod tests {
 
     fn sq(centre: Vec3, scales: Vec3, eps: [f32; 2]) -> MapSq {
         let sq = Superquadric { scales, eps, centre, rotation: linalg::IDENTITY };
-        MapSq { sq, instance: 1, class: 0, score: 1.0, track: 0 }
+        MapSq { sq, instance: 1, class: 0, score: 1.0, track: 0, partial: false }
     }
 
     #[test]

@@ -947,9 +947,12 @@ impl<'s> Mapper<'s> {
             SQ_REJECTED => self.report.sq_rejected += 1,
             _ => {}
         }
+        // Whether the camera saw all of the shape the map shows, or only the part inside the image.
+        let partial = state == SQ_ACCEPTED && superquadric::reaches_outside_image(&sq, &checked.frame);
         if let Some(o) = self.objects.get_mut(k) {
             o.sq = sq;
             o.sq_state = state;
+            o.sq_partial = partial;
             o.sq_error = error;
             o.track = track;
         }
@@ -1082,7 +1085,14 @@ impl<'s> Mapper<'s> {
         for o in self.objects.as_slice().iter().filter(|o| o.sq_state == SQ_ACCEPTED) {
             // Objects allocated by geometry (MMQ) carry no instance: their key is a cluster id.
             let instance = if self.params.variant.geometric_objects() { 0 } else { o.instance };
-            f(&Primitive::Sq(MapSq { sq: o.sq, instance, class: o.class, score: o.score, track: o.track }));
+            f(&Primitive::Sq(MapSq {
+                sq: o.sq,
+                instance,
+                class: o.class,
+                score: o.score,
+                track: o.track,
+                partial: o.sq_partial,
+            }));
         }
         for g in self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)) {
             f(&Primitive::Gmm(MapGmm {
@@ -1459,14 +1469,17 @@ fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, V
     let spacing = (largest / 3.0).max(0.01);
     let mut slots = out.iter_mut().take(OBSTACLE_PROBES);
     let mut n = 0;
-    MapSq { sq: *other, instance: 0, class: 0, score: 0.0, track: 0 }.for_each_surface_sample_spaced(spacing, |p| {
-        if within_box(p, reach.0, reach.1, 0.0) {
-            if let Some(slot) = slots.next() {
-                *slot = p;
-                n += 1;
+    MapSq { sq: *other, instance: 0, class: 0, score: 0.0, track: 0, partial: false }.for_each_surface_sample_spaced(
+        spacing,
+        |p| {
+            if within_box(p, reach.0, reach.1, 0.0) {
+                if let Some(slot) = slots.next() {
+                    *slot = p;
+                    n += 1;
+                }
             }
-        }
-    });
+        },
+    );
     n
 }
 

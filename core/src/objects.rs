@@ -50,6 +50,10 @@ pub struct Object {
     pub sq_error: f32,
     /// [`SQ_NONE`], [`SQ_REJECTED`] or [`SQ_ACCEPTED`].
     pub sq_state: u8,
+    /// With [`SQ_ACCEPTED`]: part of its superquadric's camera-facing surface projects outside the image
+    /// ([`crate::superquadric::reaches_outside_image`]), so the camera saw only part of the object and the rest
+    /// of the shape is the fit's guess ([`crate::map::MapSq::partial`]).
+    pub sq_partial: bool,
     /// Id of its superquadric track.
     pub track: u16,
 }

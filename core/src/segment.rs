@@ -161,8 +161,9 @@ impl<'f> Grid<'f> {
                 // the run's rows as slices of four pixels, without a range per cell and row; the same sums.
                 let (px0, px1) = (x0 * step, (x0 + points.len()) * step);
                 if step == 4 && v1 - v0 == 4 && px1 <= w {
-                    let rows: [&[u16]; 4] =
-                        core::array::from_fn(|r| frame.depth.get((v0 + r) * w + px0..(v0 + r) * w + px1).unwrap_or(&[]));
+                    let rows: [&[u16]; 4] = core::array::from_fn(|r| {
+                        frame.depth.get((v0 + r) * w + px0..(v0 + r) * w + px1).unwrap_or(&[])
+                    });
                     let colour_rows = [above, middle].map(|row| row.get(3 * px0..3 * px1).unwrap_or(&[]));
                     block_means_4(rows, colour_rows, (lo, hi), &tolerances, &mut means, rgbs);
                 } else {

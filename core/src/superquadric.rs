@@ -2111,9 +2111,8 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
         Hidden,
         Visible,
     }
-    let largest = sq.scales.iter().fold(0.0f32, |m, &a| m.max(a));
-    let spacing = (largest / 3.0).max(0.01);
-    let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0 };
+    let spacing = front_spacing(sq);
+    let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0, partial: false };
     let judge = |p: Vec3, facing: f32| -> Seen {
         let (pixel, free_until, hidden_from) = match observed_at(frame, params, p, 2) {
             Observed::Outside => return Seen::Outside,
@@ -2159,6 +2158,23 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
         }
     });
     view
+}
+
+/// Spacing of the camera-facing samples [`front_view`] and [`reaches_outside_image`] judge: max(1 cm, largest
+/// half-axis / 3), metres.
+fn front_spacing(sq: &Superquadric) -> f32 {
+    let largest = sq.scales.iter().fold(0.0f32, |m, &a| m.max(a));
+    (largest / 3.0).max(0.01)
+}
+
+/// Whether any camera-facing sample of `sq` (camera frame; [`front_view`]'s grid) projects outside the image of
+/// `frame` (or lies behind the camera): the camera saw only part of the shape, and beyond the image border the
+/// fit had no silhouette to stop at ([`crate::map::MapSq::partial`]).
+pub fn reaches_outside_image(sq: &Superquadric, frame: &Frame<'_>) -> bool {
+    let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0, partial: false };
+    let mut outside = false;
+    shape.for_each_sample_spaced(front_spacing(sq), |p, _| outside |= pixel_of(frame, p).is_none());
+    outside
 }
 
 /// Depth (metres) of the probe for a camera-facing sample `p` of `sq` in observed free space, whose ray the
@@ -2971,6 +2987,19 @@ mod front_view_tests {
             centre: core::array::from_fn(|k| 0.5 * (hi[k] + lo[k])),
             rotation: linalg::IDENTITY,
         }
+    }
+
+    #[test]
+    fn a_shape_that_runs_out_of_the_image_is_seen_only_in_part() {
+        // A 20 cm box at 1.4–1.6 m, well inside the image (its right border is at x = z/3: 0.47 m at 1.4 m).
+        let (lo, hi) = ([0.05, -0.1, 1.4], [0.25, 0.1, 1.6]);
+        let depth = scene(lo, hi);
+        let frame = frame_of(&depth, INTRINSICS);
+        assert!(!reaches_outside_image(&box_sq(lo, hi), &frame));
+        // The same box running on to x = 0.7 m, past the border.
+        assert!(reaches_outside_image(&box_sq(lo, [0.7, 0.1, 1.6]), &frame));
+        // Or down past the bottom border (y = 0.35 m at 1.4 m).
+        assert!(reaches_outside_image(&box_sq(lo, [0.25, 0.5, 1.6]), &frame));
     }
 
     #[test]

@@ -386,6 +386,7 @@ fn sq_of(w: WireSq) -> Result<MapSq, WireError> {
         class: w.class,
         score: w.score as f32 / 255.0,
         track: w.track,
+        partial: false,
     })
 }
 

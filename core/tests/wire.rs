@@ -34,6 +34,7 @@ fn with_map<R>(f: impl FnOnce(&[Primitive<'_>]) -> R) -> R {
             class: 0,
             score: 0.93,
             track: 7,
+            partial: false,
         }),
         Primitive::Gmm(MapGmm {
             mean: [0.5, -0.2, 1.9],

@@ -133,6 +133,9 @@ pub struct WorldFrameRecord {
     pub dropped_gmms: u32,
     /// Plane cells outside the world grids.
     pub clipped_cells: u32,
+    /// Frame superquadrics seen only in part (their shape runs out of the image) that gave no world object a
+    /// shape.
+    pub partial_sqs: u32,
     /// World planes whose shown normal and offset took a step, and whose pending cells were shown.
     pub planes_moved_grown: [u32; 2],
     /// Occupied cells shown by the world planes, and new cells they hold back.
@@ -179,6 +182,8 @@ pub struct WorldSummary {
     pub gmms_dropped: u32,
     /// Plane cells outside every world grid, over the run.
     pub cells_clipped: u32,
+    /// Frame superquadrics seen only in part, over the run.
+    pub sqs_partial: u32,
 }
 
 /// `run --world`: the world map fed after every frame, writing as it goes.
@@ -295,6 +300,7 @@ impl<'s> WorldRun<'s> {
             evicted_gmms: stats.gmms_evicted,
             dropped_gmms: stats.gmms_dropped,
             clipped_cells: stats.cells_clipped,
+            partial_sqs: stats.objects_partial,
             planes_moved_grown: [stats.planes_moved, stats.planes_grown],
             plane_cells: self
                 .world
@@ -305,6 +311,7 @@ impl<'s> WorldRun<'s> {
         self.totals.gmms_evicted += stats.gmms_evicted;
         self.totals.gmms_dropped += stats.gmms_dropped;
         self.totals.cells_clipped += stats.cells_clipped;
+        self.totals.objects_partial += stats.objects_partial;
         serde_json::to_writer(&mut self.jsonl, &record)?;
         self.jsonl
             .write_all(b"\n")
@@ -376,6 +383,7 @@ impl<'s> WorldRun<'s> {
             gmms_evicted: self.totals.gmms_evicted,
             gmms_dropped: self.totals.gmms_dropped,
             cells_clipped: self.totals.cells_clipped,
+            sqs_partial: self.totals.objects_partial,
         };
         let path = self.dir.join("world_summary.json");
         fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
