@@ -19,8 +19,9 @@
 //!   largest half-axis) and that no track updated this frame — a track that was retired and restarted keeps
 //!   its world object and id. A retired track's object stays in the map, static. An object is shown once
 //!   [`OBJECT_MIN_FRAMES`] frames saw it. A partial view ([`MapSq::partial`]: the shape runs out of the
-//!   image, where the fit had no silhouette to stop at) neither shows an object nor gives it a shape; it keeps a
-//!   shown object alive, and frame Gaussians near it count as explained, as near a stray fit.
+//!   image, where the fit had no silhouette to stop at) never gives an object its shape: it keeps a shown
+//!   object alive, frame Gaussians near it count as explained (as near a stray fit), and for an object not yet
+//!   shown it counts as a sighting when it agrees with the latest whole view; alone, it makes no object.
 //! - **Gaussians** (GMMap-style moment matching): a frame Gaussian merges into the world Gaussian with the
 //!   smallest squared Mahalanobis distance d² = Δᵀ(Σ_w + Σ_f + σ₀²I)⁻¹Δ ≤ `world_gmm_gate` (σ₀ = 5 mm) whose
 //!   merged total variance stays within `world_gmm_growth`² of the larger of the two (a re-observation merges,
@@ -656,18 +657,26 @@ impl<'s> WorldMap<'s> {
             // The camera saw only part of it: beyond the image border the fit guessed (redkitchen's default
             // sample showed a 1.2 m slab beside the left wall, cut by the border in all 17 of its sightings, with
             // 73 % of the world superquadrics' squared G2R error). Such a view is a stray fit of a shown object
-            // of its track (it stays alive, and explains the frame Gaussians near it) and does nothing to one
-            // not yet shown.
+            // of its track (it stays alive, and explains the frame Gaussians near it); for one not yet shown it
+            // counts as a sighting in a row when it agrees with the object's latest whole view, whose shape the
+            // object keeps.
             stats.objects_partial += 1;
             let own = self
                 .objects
                 .as_mut_slice()
                 .iter_mut()
-                .find(|o| o.track == s.track && o.class == s.class && o.last_frame != frame && o.is_confirmed());
-            if let Some(o) = own {
-                o.sq = sq;
-                o.last_frame = frame;
-                o.frames_seen = o.frames_seen.saturating_add(1);
+                .find(|o| o.track == s.track && o.class == s.class && o.last_frame != frame);
+            match own {
+                Some(o) if o.is_confirmed() => {
+                    o.sq = sq;
+                    o.last_frame = frame;
+                    o.frames_seen = o.frames_seen.saturating_add(1);
+                }
+                Some(o) if agree(&o.sq, &sq) => {
+                    o.last_frame = frame;
+                    o.frames_seen = o.frames_seen.saturating_add(1);
+                }
+                _ => {}
             }
             return;
         }
@@ -1832,34 +1841,53 @@ mod tests {
         assert_eq!(shown(&world), Some(long.sq.scales), "two sightings in a row that agree are the new shape");
     }
 
-    /// A partial view (the shape runs out of the image) neither shows an object nor gives a shown one its shape,
-    /// however often it comes; it keeps a shown object alive.
+    /// A partial view (the shape runs out of the image) never gives an object its shape, however often it comes,
+    /// and alone makes no object; agreeing with a whole view it counts as a sighting; it keeps a shown object
+    /// alive.
     #[test]
-    fn a_partial_view_neither_shows_nor_reshapes_an_object() {
+    fn a_partial_view_never_shapes_an_object() {
         let params = Params::default();
         let mut storage = bytemuck::zeroed_box::<Small>();
         let mut world = WorldMap::new(&mut storage);
         let whole = sq([0.0, 0.0, 2.0], 1);
         let partial = MapSq { partial: true, ..whole };
+        let mut see = |world: &mut WorldMap<'_>, frame: u32, fit: MapSq| {
+            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(fit))).unwrap()
+        };
         for frame in 0..5u32 {
-            let stats = world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(partial))).unwrap();
-            assert_eq!(stats.objects_partial, 1);
+            assert_eq!(see(&mut world, frame, partial).objects_partial, 1);
         }
         assert_eq!(world.objects().len(), 0, "partial views alone make no object");
-        for frame in 5..8u32 {
-            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(whole))).unwrap();
-        }
-        assert_eq!(world.primitive_counts()[1], 1, "three whole views in a row show it");
+        // One whole view, then partial views that agree with it: shown, with the whole view's shape.
+        let whole_wider = MapSq { sq: Superquadric { scales: [0.12, 0.1, 0.2], ..whole.sq }, ..whole };
+        see(&mut world, 5, whole_wider);
+        see(&mut world, 6, partial);
+        assert_eq!(world.primitive_counts()[1], 0);
+        see(&mut world, 7, partial);
+        assert_eq!(world.primitive_counts()[1], 1, "a whole view and two agreeing partial views in a row");
+        assert_eq!(world.objects().first().map(|o| o.shown.sq.scales), Some(whole_wider.sq.scales));
         // The track's next views run on to a 40 cm half-axis, cut by the image border: three in a row agree with
-        // each other, and still the shown shape is the whole views'.
+        // each other, and still the shown shape is the whole view's.
         let running_on = MapSq { sq: Superquadric { scales: [0.1, 0.1, 0.4], ..whole.sq }, partial: true, ..whole };
         for frame in 8..11u32 {
-            world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(running_on))).unwrap();
+            see(&mut world, frame, running_on);
         }
         let object = world.objects().first().copied().unwrap();
-        assert_eq!(object.shown.sq.scales, whole.sq.scales);
+        assert_eq!(object.shown.sq.scales, whole_wider.sq.scales);
         assert_eq!(object.last_frame, 10, "kept alive");
         assert_eq!(world.primitive_counts()[1], 1);
+        // A partial view that disagrees with an object not yet shown does not count: another track's object.
+        let other = MapSq { sq: Superquadric { centre: [1.0, 0.0, 2.0], ..whole.sq }, track: 2, ..whole };
+        see(&mut world, 11, other);
+        see(&mut world, 12, MapSq { partial: true, ..running_on_track(2) });
+        see(&mut world, 13, MapSq { partial: true, ..running_on_track(2) });
+        assert_eq!(world.primitive_counts()[1], 1, "partial views that disagree with the whole view do not count");
+    }
+
+    /// [`a_partial_view_never_shapes_an_object`]'s 40 cm long fit at (1, 0, 2) m, of track `track`.
+    fn running_on_track(track: u16) -> MapSq {
+        let s = sq([1.0, 0.0, 2.0], track);
+        MapSq { sq: Superquadric { scales: [0.1, 0.1, 0.4], ..s.sq }, ..s }
     }
 
     #[test]
