@@ -1851,7 +1851,7 @@ mod tests {
         let mut world = WorldMap::new(&mut storage);
         let whole = sq([0.0, 0.0, 2.0], 1);
         let partial = MapSq { partial: true, ..whole };
-        let mut see = |world: &mut WorldMap<'_>, frame: u32, fit: MapSq| {
+        let see = |world: &mut WorldMap<'_>, frame: u32, fit: MapSq| {
             world.integrate(frame, &identity(), &params, |f| f(&Primitive::Sq(fit))).unwrap()
         };
         for frame in 0..5u32 {
