@@ -2171,6 +2171,31 @@ fn front_spacing(sq: &Superquadric) -> f32 {
 /// `frame` (or lies behind the camera): the camera saw only part of the shape, and beyond the image border the
 /// fit had no silhouette to stop at ([`crate::map::MapSq::partial`]).
 pub fn reaches_outside_image(sq: &Superquadric, frame: &Frame<'_>) -> bool {
+    // First the sphere about the centre that holds the whole shape (its box's half-diagonal): when it lies in
+    // front of the camera and its projection, bounded coordinate by coordinate, stays a pixel inside the image,
+    // no sample can fall outside (most shapes; the samples are not needed).
+    let r = linalg::norm(sq.scales);
+    let [x, y, z] = sq.centre;
+    let intr = &frame.intrinsics;
+    if z - r > 0.0 && intr.fx > 0.0 && intr.fy > 0.0 {
+        // The least and the greatest of c/z over the sphere, for a coordinate c with centre value `c`.
+        let ratios = |c: f32| {
+            let lo = if c - r <= 0.0 { (c - r) / (z - r) } else { (c - r) / (z + r) };
+            let hi = if c + r >= 0.0 { (c + r) / (z - r) } else { (c + r) / (z + r) };
+            (lo, hi)
+        };
+        let ((u_lo, u_hi), (v_lo, v_hi)) = (ratios(x), ratios(y));
+        let inside =
+            |lo: f32, hi: f32, f: f32, c: f32, len: u16| f * lo + c >= 1.0 && f * hi + c <= f32::from(len) - 2.0;
+        if inside(u_lo, u_hi, intr.fx, intr.cx, frame.width) && inside(v_lo, v_hi, intr.fy, intr.cy, frame.height) {
+            return false;
+        }
+    }
+    samples_outside_image(sq, frame)
+}
+
+/// [`reaches_outside_image`] sample by sample.
+fn samples_outside_image(sq: &Superquadric, frame: &Frame<'_>) -> bool {
     let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0, partial: false };
     let mut outside = false;
     shape.for_each_sample_spaced(front_spacing(sq), |p, _| outside |= pixel_of(frame, p).is_none());
@@ -3000,6 +3025,18 @@ mod front_view_tests {
         assert!(reaches_outside_image(&box_sq(lo, [0.7, 0.1, 1.6]), &frame));
         // Or down past the bottom border (y = 0.35 m at 1.4 m).
         assert!(reaches_outside_image(&box_sq(lo, [0.25, 0.5, 1.6]), &frame));
+        // The bounding-sphere shortcut answers as the samples do: boxes across the image, at its borders, beside
+        // it and reaching behind the camera.
+        let mut outside = 0;
+        for (i, j, k) in (0..9).flat_map(|i| (0..7).flat_map(move |j| (0..4).map(move |k| (i, j, k)))) {
+            let centre = [-0.5 + 0.125 * i as f32, -0.36 + 0.12 * j as f32, 0.4 + 0.6 * k as f32];
+            let half = [0.05 + 0.03 * (i % 3) as f32, 0.04 + 0.05 * (j % 3) as f32, 0.06 + 0.04 * k as f32];
+            let b = box_sq(linalg::sub(centre, half), linalg::add(centre, half));
+            let full = samples_outside_image(&b, &frame);
+            assert_eq!(reaches_outside_image(&b, &frame), full, "{centre:?} ± {half:?}");
+            outside += usize::from(full);
+        }
+        assert!((50..200).contains(&outside), "{outside} of 252 boxes reach outside");
     }
 
     #[test]
