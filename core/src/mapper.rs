@@ -1095,17 +1095,21 @@ impl<'s> Mapper<'s> {
             }));
         }
         for g in self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)) {
-            f(&Primitive::Gmm(MapGmm {
-                mean: g.mean,
-                rotation: linalg::from_columns(g.axes[0], g.axes[1], g.axes[2]),
-                sigmas: g.sigmas(),
-                count: g.count,
-                colour: g.colour,
-                instance: g.instance,
-                class: g.class,
-                score: g.score,
-                support_ratio: g.support_ratio,
-            }));
+            f(&Primitive::Gmm(map_gmm(g)));
+        }
+    }
+
+    /// What the world map takes from the last frame ([`crate::world::WorldMap::integrate`]): the map's primitives
+    /// ([`Mapper::for_each_primitive`]), then the Gaussians of each object whose superquadric is a partial view
+    /// ([`MapSq::partial`]): what the camera saw of it, where the world takes no shape from the fit.
+    pub fn for_each_world_primitive(&self, mut f: impl FnMut(&Primitive<'_>)) {
+        self.for_each_primitive(&mut f);
+        let partial = |g: &Gaussian| {
+            g.role == ROLE_OBJECT
+                && self.objects.get(g.owner as usize).is_some_and(|o| o.sq_state == SQ_ACCEPTED && o.sq_partial)
+        };
+        for g in self.gaussians.as_slice().iter().filter(|g| partial(g)) {
+            f(&Primitive::Gmm(map_gmm(g)));
         }
     }
 
@@ -1528,6 +1532,20 @@ fn within_box(p: Vec3, lo: Vec3, hi: Vec3, margin: f32) -> bool {
     p.iter().zip(lo.iter().zip(&hi)).all(|(x, (lo, hi))| *x >= lo - margin && *x <= hi + margin)
 }
 
+/// A Gaussian as a GMM primitive of the map.
+fn map_gmm(g: &Gaussian) -> MapGmm {
+    MapGmm {
+        mean: g.mean,
+        rotation: linalg::from_columns(g.axes[0], g.axes[1], g.axes[2]),
+        sigmas: g.sigmas(),
+        count: g.count,
+        colour: g.colour,
+        instance: g.instance,
+        class: g.class,
+        score: g.score,
+        support_ratio: g.support_ratio,
+    }
+}
 #[cfg(test)]
 mod separating_face_tests {
     //! A neighbour's flat-faced shape bounds an object beside it by its face towards the object

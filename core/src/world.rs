@@ -21,7 +21,8 @@
 //!   [`OBJECT_MIN_FRAMES`] frames saw it. A partial view ([`MapSq::partial`]: the shape runs out of the
 //!   image, where the fit had no silhouette to stop at) never gives an object its shape: it keeps a shown
 //!   object alive, frame Gaussians near it count as explained (as near a stray fit), and for an object not yet
-//!   shown it counts as a sighting when it agrees with the latest whole view; alone, it makes no object.
+//!   shown it counts as a sighting when it agrees with the latest whole view; alone, it makes no object. What
+//!   the camera saw of such an object comes as its Gaussians ([`crate::Mapper::for_each_world_primitive`]).
 //! - **Gaussians** (GMMap-style moment matching): a frame Gaussian merges into the world Gaussian with the
 //!   smallest squared Mahalanobis distance d² = Δᵀ(Σ_w + Σ_f + σ₀²I)⁻¹Δ ≤ `world_gmm_gate` (σ₀ = 5 mm) whose
 //!   merged total variance stays within `world_gmm_growth`² of the larger of the two (a re-observation merges,

@@ -116,7 +116,7 @@ pub fn host_digests(dataset: &Dataset, frames: &[FirmwareFrame]) -> Result<Vec<F
             let map_crc = m2smap_core::wire::crc32(&buf[..n.saturating_sub(4)]);
             let pose = f.pose.ok_or_else(|| anyhow!("frame {i} has no pose: the firmware's world map needs one"))?;
             world
-                .integrate(i as u32, &pose, mapper.params(), |sink| mapper.for_each_primitive(sink))
+                .integrate(i as u32, &pose, mapper.params(), |sink| mapper.for_each_world_primitive(sink))
                 .map_err(|e| anyhow!("frame {i}: world map: {e}"))?;
             let d = world.encode_delta(&mut buf).map_err(|e| anyhow!("frame {i}: world delta: {e}"))?;
             let delta_crc = m2smap_core::wire::crc32(&buf[..d.saturating_sub(4)]);

@@ -75,7 +75,7 @@ fn render_world(
             .to_core();
         map_frame(s.mapper, s.dataset, k, s.source, s.labels, s.seg)?;
         world
-            .integrate(k as u32, &pose, s.mapper.params(), |f| s.mapper.for_each_primitive(f))
+            .integrate(k as u32, &pose, s.mapper.params(), |f| s.mapper.for_each_world_primitive(f))
             .map_err(|e| anyhow!("frame {k}: world map: {e}"))?;
         first.get_or_insert(pose);
     }

@@ -694,7 +694,7 @@ fn replay<P: Profile + Zeroable>(
                     &pose.to_core(),
                     mapper.params(),
                     payload,
-                    |f| mapper.for_each_primitive(f),
+                    |f| mapper.for_each_world_primitive(f),
                     &observed,
                 )?;
             }
