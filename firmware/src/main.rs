@@ -382,7 +382,8 @@ fn main() -> ! {
         let Some(pose) = f.pose else { fail("a frame without a pose: the world map needs one") };
         let allocs_before = ALLOCATOR.allocations();
         let t0 = ticks();
-        if let Err(e) = world.integrate(i as u32, &pose, mapper.params(), |sink| mapper.for_each_world_primitive(sink)) {
+        if let Err(e) = world.integrate(i as u32, &pose, mapper.params(), |sink| mapper.for_each_world_primitive(sink))
+        {
             defmt::error!("frame {} world map: {}", i, defmt::Debug2Format(&e));
             exit_failure()
         }
