@@ -3025,8 +3025,8 @@ mod front_view_tests {
         assert!(reaches_outside_image(&box_sq(lo, [0.7, 0.1, 1.6]), &frame));
         // Or down past the bottom border (y = 0.35 m at 1.4 m).
         assert!(reaches_outside_image(&box_sq(lo, [0.25, 0.5, 1.6]), &frame));
-        // The bounding-sphere shortcut answers as the samples do: boxes across the image, at its borders, beside
-        // it and reaching behind the camera.
+        // The bounding-sphere shortcut answers as the samples do: boxes across the image, at its borders and
+        // beside it, from 0.4 to 2.2 m.
         let mut outside = 0;
         for (i, j, k) in (0..9).flat_map(|i| (0..7).flat_map(move |j| (0..4).map(move |k| (i, j, k)))) {
             let centre = [-0.5 + 0.125 * i as f32, -0.36 + 0.12 * j as f32, 0.4 + 0.6 * k as f32];
