@@ -187,20 +187,11 @@ impl<'f> Grid<'f> {
                         }
                         // n ≥ 1 (the centre is valid), so the mean is in range (and not 0: the centre is in range).
                         *mean = (sum / n.max(1)) as u16;
-                        // The colour of the 2 × 2 pixels about the centre (a quarter of the sensor's colour noise):
-                        // the pixels left of and at the centre column, in the centre row and the one above.
-                        let x0 = uc.saturating_sub(1);
-                        let mut colour = [0u32; 3];
-                        for pixels in [above, middle] {
-                            for x in [x0, uc] {
-                                if let Some(&[r, g, b]) = pixels.get(3 * x..3 * x + 3) {
-                                    colour = [colour[0] + r as u32, colour[1] + g as u32, colour[2] + b as u32];
-                                }
-                            }
-                        }
+                        // The pixels left of and at the centre column (uc ≥ 1: a cell is at least 2 pixels wide).
+                        let pair = 3 * uc.saturating_sub(1)..3 * uc + 3;
+                        let pixels = [above.get(pair.clone()).unwrap_or(&[]), middle.get(pair).unwrap_or(&[])];
                         if let [lo_half, hi_half] = rgb {
-                            *lo_half = (colour[0] / 4) as u16 | ((colour[1] / 4) as u16) << 8;
-                            *hi_half = (colour[2] / 4) as u16;
+                            [*lo_half, *hi_half] = colour_words(pixels);
                         }
                     }
                 }
@@ -497,20 +488,28 @@ fn block_means_4(
             }
         }
         *mean = (sum / n.max(1)) as u16;
-        // Pixels 1 and 2 of the cell (bytes 3..9) in the row above the centre and in the centre row.
-        let mut colour = [0u32; 3];
-        for pixels in [top, mid] {
-            for x in [3, 6] {
-                if let Some(&[r, g, b]) = pixels.get(x..x + 3) {
-                    colour = [colour[0] + r as u32, colour[1] + g as u32, colour[2] + b as u32];
-                }
-            }
-        }
+        // Pixels 1 and 2 of the cell (bytes 3..9), left of and at its centre column.
         if let [lo_half, hi_half] = rgb {
-            *lo_half = (colour[0] / 4) as u16 | ((colour[1] / 4) as u16) << 8;
-            *hi_half = (colour[2] / 4) as u16;
+            [*lo_half, *hi_half] = colour_words([top.get(3..9).unwrap_or(&[]), mid.get(3..9).unwrap_or(&[])]);
         }
     }
+}
+
+/// A cell's colour words (r | g << 8, b) from the 2 × 2 pixels about its centre (a quarter of the sensor's
+/// colour noise): `pixels` are the two pixels (6 bytes of RGB) left of and at the centre column in the row above
+/// the centre and in the centre row.
+fn colour_words(pixels: [&[u8]; 2]) -> [u16; 2] {
+    let mut colour = [0u32; 3];
+    for row in pixels {
+        if let Some(&[r0, g0, b0, r1, g1, b1]) = row.get(..6) {
+            colour = [
+                colour[0] + r0 as u32 + r1 as u32,
+                colour[1] + g0 as u32 + g1 as u32,
+                colour[2] + b0 as u32 + b1 as u32,
+            ];
+        }
+    }
+    [(colour[0] / 4) as u16 | ((colour[1] / 4) as u16) << 8, (colour[2] / 4) as u16]
 }
 
 /// The pixels of the `k`-th block of `step` pixels along an image axis of `len` pixels: its first, its centre

@@ -654,6 +654,12 @@ impl<'s> WorldMap<'s> {
     /// the world frame.
     fn add_object(&mut self, s: &MapSq, frame: u32, params: &Params, stats: &mut WorldStats) {
         let sq = s.sq;
+        // The world object of this track (not one another sighting updated this frame).
+        let found = self
+            .objects
+            .as_slice()
+            .iter()
+            .position(|o| o.track == s.track && o.class == s.class && o.last_frame != frame);
         if s.partial {
             // The camera saw only part of it: beyond the image border the fit guessed (redkitchen's default
             // sample showed a 1.2 m slab beside the left wall, cut by the border in all 17 of its sightings, with
@@ -662,12 +668,7 @@ impl<'s> WorldMap<'s> {
             // counts as a sighting in a row when it agrees with the object's latest whole view, whose shape the
             // object keeps.
             stats.objects_partial += 1;
-            let own = self
-                .objects
-                .as_mut_slice()
-                .iter_mut()
-                .find(|o| o.track == s.track && o.class == s.class && o.last_frame != frame);
-            match own {
+            match found.and_then(|i| self.objects.get_mut(i)) {
                 Some(o) if o.is_confirmed() => {
                     o.sq = sq;
                     o.last_frame = frame;
@@ -682,7 +683,6 @@ impl<'s> WorldMap<'s> {
             return;
         }
         let objects = self.objects.as_slice();
-        let found = objects.iter().position(|o| o.track == s.track && o.class == s.class && o.last_frame != frame);
         let adopted = found.or_else(|| {
             objects.iter().position(|o| {
                 let reach = params.d_max.max(max3(o.sq.scales)).max(max3(sq.scales));
