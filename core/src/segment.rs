@@ -53,6 +53,7 @@ use crate::linalg::{self, Vec3};
 use crate::masks::Instance;
 use crate::params::Params;
 use crate::union_find;
+use wide::{f32x4, i32x4, u16x8};
 
 /// Cells across the image width (the cell side is the width over this, at least 2 pixels).
 const GRID_COLUMNS: u16 = 160;
@@ -96,10 +97,13 @@ struct Grid<'f> {
     step: usize,
     cols: usize,
     rows: usize,
-    /// Each cell's point (camera frame, metres; all 0 without one): see [`Grid::fill`].
-    points: &'f [Vec3],
-    /// Each cell's unit normal × 32767 as three i16 bit patterns (all 0 = none), once computed.
-    normals: &'f [u16],
+    /// Each cell's point (camera frame, metres; all 0 without one), coordinate by coordinate (the x, y and z of
+    /// every cell, so that neighbouring cells' coordinates are side by side for [`Grid::surfels`]' lanes): see
+    /// [`Grid::fill`].
+    points: [&'f [f32]; 3],
+    /// Each cell's unit normal × 32767 as an i16 bit pattern (all 0 = none), component by component, once
+    /// computed.
+    normals: [&'f [u16]; 3],
     /// Each cell's link word ([`link`]), once computed.
     links: &'f [u16],
 }
@@ -126,7 +130,7 @@ impl<'f> Grid<'f> {
         frame: &Frame<'_>,
         params: &Params,
         (step, cols, rows): (usize, usize, usize),
-        points: &mut [Vec3],
+        points: [&mut [f32]; 3],
         colours: &mut [u16],
     ) {
         let (w, h) = (frame.width as usize, frame.height as usize);
@@ -134,7 +138,9 @@ impl<'f> Grid<'f> {
             return;
         }
         let (lo, hi) = frame.raw_range(params);
-        for (cy, (point_row, colour_row)) in points.chunks_mut(cols).zip(colours.chunks_mut(2 * cols)).enumerate() {
+        let [xs, ys, zs] = points;
+        let point_rows = xs.chunks_mut(cols).zip(ys.chunks_mut(cols)).zip(zs.chunks_mut(cols));
+        for (cy, (((x_row, y_row), z_row), colour_row)) in point_rows.zip(colours.chunks_mut(2 * cols)).enumerate() {
             if cy >= rows {
                 return;
             }
@@ -146,11 +152,12 @@ impl<'f> Grid<'f> {
             let middle = frame.colour.get(3 * vc * w..3 * vc * w + 3 * w).unwrap_or(&[]);
             // [`FILL_RUN`] cells at a time, in three loops whose iterations do not wait for each other (each step
             // has a division): the centres' tolerances, the blocks' means and colours, the back-projections.
-            let runs = point_row.chunks_mut(FILL_RUN).zip(colour_row.chunks_mut(2 * FILL_RUN));
-            for (run, (points, rgbs)) in runs.enumerate() {
+            let point_runs = x_row.chunks_mut(FILL_RUN).zip(y_row.chunks_mut(FILL_RUN)).zip(z_row.chunks_mut(FILL_RUN));
+            for (run, (((xs, ys), zs), rgbs)) in point_runs.zip(colour_row.chunks_mut(2 * FILL_RUN)).enumerate() {
+                let len = zs.len();
                 let x0 = run * FILL_RUN;
                 let mut tolerances = [0u32; FILL_RUN];
-                for (k, t) in tolerances.iter_mut().enumerate().take(points.len()) {
+                for (k, t) in tolerances.iter_mut().enumerate().take(len) {
                     let (_, uc, _) = block_span(x0 + k, step, w);
                     let centre = centre_row.get(uc).copied().unwrap_or(0);
                     *t = raw_jump(frame, params, step, centre);
@@ -159,7 +166,7 @@ impl<'f> Grid<'f> {
                 let mut means = [0u16; FILL_RUN];
                 // The usual layout (4-pixel cells, the run's four pixel rows and columns all in the image) reads
                 // the run's rows as slices of four pixels, without a range per cell and row; the same sums.
-                let (px0, px1) = (x0 * step, (x0 + points.len()) * step);
+                let (px0, px1) = (x0 * step, (x0 + len) * step);
                 if step == 4 && v1 - v0 == 4 && px1 <= w {
                     let rows: [&[u16]; 4] = core::array::from_fn(|r| {
                         frame.depth.get((v0 + r) * w + px0..(v0 + r) * w + px1).unwrap_or(&[])
@@ -195,8 +202,9 @@ impl<'f> Grid<'f> {
                         }
                     }
                 }
-                for (k, (point, &mean)) in points.iter_mut().zip(&means).enumerate() {
-                    *point = if mean == 0 { [0.0; 3] } else { cell_point((step, x0 + k, cy), frame, mean) };
+                let points = xs.iter_mut().zip(ys.iter_mut()).zip(zs.iter_mut());
+                for (k, (((x, y), z), &mean)) in points.zip(&means).enumerate() {
+                    [*x, *y, *z] = if mean == 0 { [0.0; 3] } else { cell_point((step, x0 + k, cy), frame, mean) };
                 }
             }
         }
@@ -219,7 +227,9 @@ impl<'f> Grid<'f> {
     #[inline]
     fn point(&self, i: usize) -> Option<Vec3> {
         // A cell with a point has z ≥ `depth_min` > 0.
-        self.points.get(i).filter(|p| p[2] != 0.0).copied()
+        let [xs, ys, zs] = self.points;
+        let z = zs.get(i).copied().filter(|&z| z != 0.0)?;
+        Some([xs.get(i).copied()?, ys.get(i).copied()?, z])
     }
 
     /// [`surface_jump`] on this grid.
@@ -231,15 +241,9 @@ impl<'f> Grid<'f> {
     /// (quantised to 1/32767).
     fn cached_surfel(&self, cx: usize, cy: usize) -> Option<(Vec3, Vec3)> {
         let p = self.point_at(cx, cy)?;
-        let i = 3 * self.index(cx, cy);
-        Some((p, dequantised(self.normals.get(i..i + 3)?)?))
-    }
-
-    /// The cells of row `cy` (empty beyond the grid), as the points they index.
-    fn row(&self, cy: usize) -> &[Vec3] {
-        let len = self.points.len();
-        let start = cy.saturating_mul(self.cols).min(len);
-        self.points.get(start..(start + self.cols).min(len)).unwrap_or(&[])
+        let i = self.index(cx, cy);
+        let [a, b, c] = self.normals;
+        Some((p, dequantised([*a.get(i)?, *b.get(i)?, *c.get(i)?])?))
     }
 
     /// Writes each cell's unit normal (facing the camera, quantised to 1/32767; all 0 = none) into `normals` and
@@ -250,100 +254,98 @@ impl<'f> Grid<'f> {
     /// test a lane mask: the arithmetic runs side by side, without a branch per cell.
     #[inline(never)]
     #[allow(clippy::indexing_slicing)] // every index is a lane (k < SURFEL_LANES: `from_fn`'s or a loop's over the lanes), a coordinate (c < 3) or a side (< 4) of a fixed-size array; none comes from the input
-    fn surfels(&self, normals: &mut [u16], links: &mut [u16]) {
+    fn surfels(&self, normals: [&mut [u16]; 3], links: &mut [u16]) {
         type Lanes = [f32; SURFEL_LANES];
-        let mut cells = normals.chunks_exact_mut(3).zip(links.iter_mut());
+        let cols = self.cols;
+        // Coordinate c of row cy's cells (empty beyond the grid).
+        let row = |c: usize, cy: Option<usize>| -> &[f32] {
+            let plane = self.points.get(c).copied().unwrap_or(&[]);
+            cy.and_then(|cy| plane.get(cy * cols..(cy + 1) * cols)).unwrap_or(&[])
+        };
+        let [nx, ny, nz] = normals;
         for cy in 0..self.rows {
-            let (here, above, below) =
-                (self.row(cy), cy.checked_sub(1).map_or(&[][..], |y| self.row(y)), self.row(cy + 1));
-            for x0 in (0..self.cols).step_by(SURFEL_LANES) {
-                // The cell's point and its neighbours' (all 0 where there is none), coordinate by coordinate.
+            let rows = |cy: Option<usize>| -> [&[f32]; 3] { core::array::from_fn(|c| row(c, cy)) };
+            let (here, above, below) = (rows(Some(cy)), rows(cy.checked_sub(1)), rows(Some(cy + 1)));
+            for x0 in (0..cols).step_by(SURFEL_LANES) {
+                // The cells' points and their left, right, upper and lower neighbours' (all 0 where there is
+                // none), coordinate by coordinate.
                 let mut p = [[0.0; SURFEL_LANES]; 3];
                 let mut side = [[[0.0; SURFEL_LANES]; 3]; 4];
-                let window = x0.checked_sub(1).and_then(|x| here.get(x..x + SURFEL_LANES + 2));
-                let column =
-                    |row: &[Vec3]| -> Option<[Vec3; SURFEL_LANES]> { row.get(x0..x0 + SURFEL_LANES)?.try_into().ok() };
-                if let (Some(window), Some(up), Some(down)) = (window, column(above), column(below)) {
+                let window = |row: &[f32], x: usize| -> Option<[f32; SURFEL_LANES + 2]> {
+                    row.get(x..x + SURFEL_LANES + 2)?.try_into().ok()
+                };
+                let column = |row: &[f32]| -> Option<Lanes> { row.get(x0..x0 + SURFEL_LANES)?.try_into().ok() };
+                let inside = x0.checked_sub(1).and_then(|x| {
+                    let rows: [Option<([f32; SURFEL_LANES + 2], Lanes, Lanes)>; 3] =
+                        core::array::from_fn(|c| Some((window(here[c], x)?, column(above[c])?, column(below[c])?)));
+                    match rows {
+                        [Some(a), Some(b), Some(c)] => Some([a, b, c]),
+                        _ => None,
+                    }
+                });
+                if let Some(rows) = inside {
                     // Inside the grid: the batch's cells, their left and right neighbours and the rows above and
                     // below them are slices.
-                    for c in 0..3 {
-                        for k in 0..SURFEL_LANES {
-                            let at = |row: &[Vec3], x: usize| row.get(x).map_or(0.0, |q| q[c]);
-                            p[c][k] = at(window, k + 1);
-                            side[0][c][k] = at(window, k);
-                            side[1][c][k] = at(window, k + 2);
-                            side[2][c][k] = at(&up, k);
-                            side[3][c][k] = at(&down, k);
-                        }
+                    for (c, (window, up, down)) in rows.into_iter().enumerate() {
+                        p[c] = core::array::from_fn(|k| window[k + 1]);
+                        side[0][c] = core::array::from_fn(|k| window[k]);
+                        side[1][c] = core::array::from_fn(|k| window[k + 2]);
+                        side[2][c] = up;
+                        side[3][c] = down;
                     }
                 } else {
-                    for k in 0..SURFEL_LANES {
-                        let cx = x0 + k;
-                        let at =
-                            |row: &[Vec3], x: Option<usize>| x.and_then(|x| row.get(x)).copied().unwrap_or([0.0; 3]);
-                        let points = [
-                            at(here, cx.checked_sub(1)),
-                            at(here, Some(cx + 1)),
-                            at(above, Some(cx)),
-                            at(below, Some(cx)),
-                        ];
-                        for (c, v) in at(here, Some(cx)).into_iter().enumerate() {
-                            p[c][k] = v;
-                        }
-                        for (s, q) in points.into_iter().enumerate() {
-                            for (c, v) in q.into_iter().enumerate() {
-                                side[s][c][k] = v;
-                            }
-                        }
+                    for c in 0..3 {
+                        p[c] = lanes(here[c], x0, false);
+                        side[0][c] = lanes(here[c], x0, true);
+                        side[1][c] = lanes(here[c], x0 + 1, false);
+                        side[2][c] = lanes(above[c], x0, false);
+                        side[3][c] = lanes(below[c], x0, false);
                     }
                 }
                 let z = p[2];
-                let has_point: [bool; SURFEL_LANES] = core::array::from_fn(|k| z[k] != 0.0);
-                let jump: Lanes = core::array::from_fn(|k| self.jump(z[k]));
+                let jump = f32x4::from(z.map(|z| self.jump(z)));
+                let (p, side) = (p.map(f32x4::from), side.map(|s| s.map(f32x4::from)));
+                let (zero, z) = (f32x4::ZERO, p[2]);
+                let has_point = z.simd_ne(zero);
                 // A neighbour lies on the cell's surface when it has a point within the jump of the cell's depth.
-                let on: [[bool; SURFEL_LANES]; 4] = core::array::from_fn(|s| {
-                    core::array::from_fn(|k| {
-                        let q = side[s][2][k];
-                        has_point[k] & (q != 0.0) & (libm::fabsf(q - z[k]) <= jump[k])
-                    })
+                let on: [f32x4; 4] = core::array::from_fn(|s| {
+                    let q = side[s][2];
+                    has_point & q.simd_ne(zero) & (q - z).abs().simd_le(jump)
                 });
-                let [left, right, up, down] = on;
                 // Along an axis: ahead − behind, the cell's own point standing in for a missing one.
-                let along = |ahead: usize, behind: usize| -> [Lanes; 3] {
+                let along = |ahead: usize, behind: usize| -> [f32x4; 3] {
                     core::array::from_fn(|c| {
-                        core::array::from_fn(|k| {
-                            let a = if on[ahead][k] { side[ahead][c][k] } else { p[c][k] };
-                            let b = if on[behind][k] { side[behind][c][k] } else { p[c][k] };
-                            a - b
-                        })
+                        on[ahead].select(side[ahead][c], p[c]) - on[behind].select(side[behind][c], p[c])
                     })
                 };
                 let (a, b) = (along(1, 0), along(3, 2));
-                let n: [Lanes; 3] = [
-                    core::array::from_fn(|k| a[1][k] * b[2][k] - a[2][k] * b[1][k]),
-                    core::array::from_fn(|k| a[2][k] * b[0][k] - a[0][k] * b[2][k]),
-                    core::array::from_fn(|k| a[0][k] * b[1][k] - a[1][k] * b[0][k]),
-                ];
-                let dot = |u: &[Lanes; 3], v: &[Lanes; 3], k: usize| {
-                    u[0][k] * v[0][k] + u[1][k] * v[1][k] + u[2][k] * v[2][k]
-                };
-                let length: Lanes = core::array::from_fn(|k| libm::sqrtf(dot(&n, &n, k)));
+                let n = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+                let dot = |u: &[f32x4; 3], v: &[f32x4; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+                // (libm's square root lane by lane: correctly rounded on the host and the Cortex-M7 alike.)
+                let length = f32x4::from(dot(&n, &n).to_array().map(libm::sqrtf));
                 // linalg::normalize_or(n, 0), then turned towards the camera.
-                let inverse: Lanes = core::array::from_fn(|k| 1.0 / length[k]);
-                let unit: [Lanes; 3] = core::array::from_fn(|c| {
-                    core::array::from_fn(|k| if length[k] > 1e-12 { n[c][k] * inverse[k] } else { 0.0 })
-                });
-                let flip: Lanes = core::array::from_fn(|k| if dot(&unit, &p, k) > 0.0 { -1.0 } else { 1.0 });
-                let unit: [Lanes; 3] = core::array::from_fn(|c| core::array::from_fn(|k| unit[c][k] * flip[k]));
-                for k in 0..SURFEL_LANES.min(self.cols - x0) {
-                    let Some((q, bits)) = cells.next() else { return };
-                    *bits = (u16::from(left[k]) * link::LEFT)
-                        | (u16::from(right[k]) * link::RIGHT)
-                        | (u16::from(up[k]) * link::UP)
-                        | (u16::from(down[k]) * link::DOWN);
-                    let valid = (left[k] | right[k]) & (up[k] | down[k]) & (dot(&unit, &unit, k) > 0.5);
-                    for (c, x) in q.iter_mut().enumerate() {
-                        *x = crate::supervoxel::quantise_unit(if valid { unit[c][k] } else { 0.0 }) as u16;
+                let inverse = f32x4::ONE / length;
+                let long = length.simd_gt(f32x4::splat(1e-12));
+                let unit = n.map(|n| long.select(n * inverse, zero));
+                let flip = dot(&unit, &p).simd_gt(zero).select(f32x4::splat(-1.0), f32x4::ONE);
+                let unit = unit.map(|u| u * flip);
+                let valid = (on[0] | on[1]) & (on[2] | on[3]) & dot(&unit, &unit).simd_gt(f32x4::splat(0.5));
+                let bit = |mask: f32x4, bit: u16| bytemuck::cast::<f32x4, i32x4>(mask) & i32x4::splat(i32::from(bit));
+                let [left, right, up, down] = on;
+                let bits = bit(left, link::LEFT) | bit(right, link::RIGHT) | bit(up, link::UP) | bit(down, link::DOWN);
+                let first = cy * cols + x0;
+                let len = SURFEL_LANES.min(cols - x0);
+                if let Some(out) = links.get_mut(first..first + len) {
+                    for (out, &b) in out.iter_mut().zip(bits.as_array()) {
+                        *out = b as u16;
+                    }
+                }
+                for (c, plane) in [&mut *nx, &mut *ny, &mut *nz].into_iter().enumerate() {
+                    let q = quantise_units(valid.select(unit[c], zero)).to_array();
+                    if let Some(out) = plane.get_mut(first..first + len) {
+                        for (out, &q) in out.iter_mut().zip(&q) {
+                            *out = q as i16 as u16;
+                        }
                     }
                 }
             }
@@ -382,12 +384,36 @@ mod link {
 }
 
 /// A cell's unit normal from its three quantised components (× 32767, as i16 bit patterns; [`Grid::surfels`]);
-/// `None` for all 0 (no normal) or fewer than three.
+/// `None` for all 0 (no normal).
 #[inline]
-fn dequantised(q: &[u16]) -> Option<Vec3> {
-    let &[a, b, c] = q else { return None };
-    let n = [a, b, c].map(|x| crate::supervoxel::dequantise_unit(x as i16));
+fn dequantised(q: [u16; 3]) -> Option<Vec3> {
+    let n = q.map(|x| crate::supervoxel::dequantise_unit(x as i16));
     (n != [0.0; 3]).then_some(n)
+}
+
+/// The values of cells `first..first + L` of `row` (`first − 1..first − 1 + L` when `before`: the cells' left
+/// neighbours), the default (0) for a cell beyond the row.
+#[inline(always)]
+fn lanes<T: Copy + Default, const L: usize>(row: &[T], first: usize, before: bool) -> [T; L] {
+    let start = first.wrapping_sub(usize::from(before));
+    match row.get(start..start.wrapping_add(L)).map(<&[T; L]>::try_from) {
+        Some(Ok(window)) => *window,
+        _ => core::array::from_fn(|k| row.get(start.wrapping_add(k)).copied().unwrap_or_default()),
+    }
+}
+
+/// [`crate::supervoxel::quantise_unit`] of four unit-vector components at once: the same rounding (half away
+/// from zero), the same values.
+#[inline(always)]
+fn quantise_units(x: f32x4) -> i32x4 {
+    let y = x.max(f32x4::splat(-1.0)).min(f32x4::ONE) * f32x4::splat(32767.0);
+    // |y| ≤ 32767: the conversion truncates towards zero, and y minus its integer part is exact.
+    let t = y.trunc_int();
+    let frac = y - t.round_float();
+    // A comparison's lane is all ones (−1 as an integer) where it holds.
+    let up: i32x4 = bytemuck::cast(frac.simd_ge(f32x4::splat(0.5)));
+    let down: i32x4 = bytemuck::cast(frac.simd_le(f32x4::splat(-0.5)));
+    t - up + down
 }
 
 /// The centre pixel of cell (cx, cy) of a grid of `step`-pixel cells back-projected at raw depth `raw`, camera
@@ -617,71 +643,108 @@ const PLANE_GROW_SWEEPS: usize = 1;
 /// Most supporting planes one segmentation marks (their index takes the 7 bits below [`PLANE_FLAG`]).
 const MAX_PLANES: usize = 8;
 
+/// The surfels ([`Grid::cached_surfel`]) and colours of four neighbouring cells of a row, coordinate by
+/// coordinate, for [`link_cells`].
+struct Surfels {
+    /// The points (metres; 0 without one).
+    p: [f32x4; 3],
+    /// The unit normals (0 without one).
+    n: [f32x4; 3],
+    /// The mean colours' red, green and blue (0–255).
+    colour: [i32x4; 3],
+    /// All ones in a lane whose cell has a point and a normal.
+    ok: f32x4,
+}
+
+#[allow(clippy::indexing_slicing)] // every index is a lane (k < 4: `from_fn`'s) or a coordinate (c < 3) of a fixed-size array; none comes from the input
+impl Surfels {
+    /// Cells `first..first + 4` of a row's points and quantised normals (coordinate by coordinate) and colour
+    /// words; none beyond the row.
+    #[inline(always)]
+    fn load(points: [&[f32]; 3], normals: [&[u16]; 3], colours: &[u16], first: usize) -> Self {
+        let p = points.map(|row| f32x4::from(lanes::<f32, 4>(row, first, false)));
+        let n = normals.map(|row| {
+            let q: [u16; 4] = lanes(row, first, false);
+            f32x4::from(q.map(|q| crate::supervoxel::dequantise_unit(q as i16)))
+        });
+        let words: [u16; 8] = lanes(colours, 2 * first, false);
+        let colour = [
+            i32x4::from(core::array::from_fn(|k| i32::from(words[2 * k] & 0xff))),
+            i32x4::from(core::array::from_fn(|k| i32::from(words[2 * k] >> 8))),
+            i32x4::from(core::array::from_fn(|k| i32::from(words[2 * k + 1] & 0xff))),
+        ];
+        let zero = f32x4::ZERO;
+        let ok = p[2].simd_ne(zero) & (n[0].simd_ne(zero) | n[1].simd_ne(zero) | n[2].simd_ne(zero));
+        Surfels { p, n, colour, ok }
+    }
+
+    /// How each lane's surfel meets `b`'s, as link bits at the right link's place (meaningful where both are
+    /// `ok`), given the cosines of [`PLANE_ANGLE_DEG`] and of `seg_concave_tolerance_deg`: the LCCP test of
+    /// [`segment`].
+    #[inline(always)]
+    fn meet(&self, b: &Surfels, (cos_plane, cos_flat): (f32, f32)) -> i32x4 {
+        let a = self;
+        let dot = |u: &[f32x4; 3], v: &[f32x4; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+        let cos = dot(&a.n, &b.n);
+        // bend = (n_a − n_b)·d̂ with d = p_a − p_b, compared without the square root and the division:
+        // bend ≥ CONVEX_MIN ⇔ e > 0 and e² ≥ CONVEX_MIN² |d|² (e = (n_a − n_b)·d); bend < 0 ⇔ e < 0.
+        let d: [f32x4; 3] = core::array::from_fn(|c| a.p[c] - b.p[c]);
+        let bend: [f32x4; 3] = core::array::from_fn(|c| a.n[c] - b.n[c]);
+        let e = dot(&bend, &d);
+        // Every test is evaluated and combined lane by lane, without a branch: the signs of e and the angles
+        // are noise on a flat surface.
+        let zero = f32x4::ZERO;
+        let convex = e.simd_gt(zero) & (e * e).simd_ge(f32x4::splat(CONVEX_MIN * CONVEX_MIN) * dot(&d, &d));
+        // A nearly flat boundary that bends inwards between cells of different colour is a contact (a ball on
+        // the floor, a can against a crate: the surfaces meet tangentially, so the concave crease is too faint
+        // for the normals), not one surface.
+        let step = (0..3).map(|c| (a.colour[c] - b.colour[c]).abs()).fold(i32x4::ZERO, i32x4::max);
+        let different: f32x4 = bytemuck::cast(step.simd_gt(i32x4::splat(COLOUR_STEP)));
+        let contact = e.simd_lt(zero) & different;
+        let coplanar = cos.simd_ge(f32x4::splat(cos_plane));
+        let joins = convex | (cos.simd_ge(f32x4::splat(cos_flat)) & !contact);
+        let bit = |mask: f32x4, bit: u16| bytemuck::cast::<f32x4, i32x4>(mask) & i32x4::splat(i32::from(bit));
+        i32x4::splat(i32::from(link::NORMALS))
+            | bit(coplanar, link::COPLANAR)
+            | bit(convex, link::CONVEX)
+            | bit(joins, link::JOINS)
+    }
+}
+
 /// Completes each cell's link word (its [`link::LEFT`]..[`link::DOWN`] bits are set) with how its surface meets
 /// its right and lower neighbours' when both have a normal (`grid`'s normals are computed): coplanar, convex, one
-/// object's surface (the LCCP test of [`segment`]). `colours` are the cells' mean colours.
+/// object's surface (the LCCP test of [`segment`]). `colours` are the cells' mean colours. Four cells at a time
+/// ([`Surfels`]).
 #[inline(never)]
 fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u16]) {
-    let cos_plane = libm::cosf(PLANE_ANGLE_DEG.to_radians());
-    let cos_flat = libm::cosf(params.seg_concave_tolerance_deg.to_radians());
-    // Row cy's points, quantised normals and colours (empty beyond the grid).
+    let cosines = (libm::cosf(PLANE_ANGLE_DEG.to_radians()), libm::cosf(params.seg_concave_tolerance_deg.to_radians()));
+    // Row cy's points and normals (coordinate by coordinate) and colour words (none beyond the grid).
     let row = |cy: usize| {
-        let (first, end) = (cy.saturating_mul(grid.cols), cy.saturating_add(1).saturating_mul(grid.cols));
-        let points = grid.points.get(first..end).unwrap_or(&[]);
-        let normals = grid.normals.get(3 * first..3 * end).unwrap_or(&[]);
-        (points, normals, colours.get(2 * first..2 * end).unwrap_or(&[]))
-    };
-    // The point and normal of cell x of a row, as [`Grid::cached_surfel`] reads them.
-    let surfel = |(points, normals, _): (&[Vec3], &[u16], &[u16]), x: usize| -> Option<(Vec3, Vec3)> {
-        let p = points.get(x).filter(|p| p[2] != 0.0)?;
-        Some((*p, dequantised(normals.get(3 * x..3 * x + 3)?)?))
-    };
-    let colour = |(_, _, colours): (&[Vec3], &[u16], &[u16]), x: usize| -> [i32; 3] {
-        match colours.get(2 * x..2 * x + 2) {
-            Some(&[rg, b]) => [(rg & 0xff) as i32, (rg >> 8) as i32, (b & 0xff) as i32],
-            _ => [0; 3],
-        }
+        let (start, end) = (cy.saturating_mul(grid.cols), cy.saturating_add(1).saturating_mul(grid.cols));
+        let points = grid.points.map(|plane| plane.get(start..end).unwrap_or(&[]));
+        let normals = grid.normals.map(|plane| plane.get(start..end).unwrap_or(&[]));
+        (points, normals, colours.get(2 * start..2 * end).unwrap_or(&[]))
     };
     for cy in 0..grid.rows {
-        let (here, below) = (row(cy), row(cy + 1));
+        let ((points, normals, rgbs), (points_below, normals_below, rgbs_below)) = (row(cy), row(cy + 1));
         let words = links.get_mut(cy * grid.cols..(cy + 1) * grid.cols).unwrap_or(&mut []);
-        // Each cell's surfel, read once as the right neighbour and kept for its own turn.
-        let mut next = surfel(here, 0);
-        for (cx, word) in words.iter_mut().enumerate() {
-            let right = surfel(here, cx + 1);
-            let Some((pa, na)) = core::mem::replace(&mut next, right) else { continue };
-            let ca = colour(here, cx);
-            // How a's surface meets b's (`b` its surfel, `cb` its colour).
-            let meet = |(pb, nb): (Vec3, Vec3), cb: [i32; 3]| -> u16 {
-                let cos = linalg::dot(na, nb);
-                // bend = (n_a − n_b)·d̂ with d = p_a − p_b, compared without the square root and the division:
-                // bend ≥ CONVEX_MIN ⇔ e > 0 and e² ≥ CONVEX_MIN² |d|² (e = (n_a − n_b)·d); bend < 0 ⇔ e < 0.
-                let d = linalg::sub(pa, pb);
-                let e = linalg::dot(linalg::sub(na, nb), d);
-                // Every test is evaluated and combined without a branch: the signs of e and the angles are noise
-                // on a flat surface, which a branch would mispredict half the time.
-                let convex = (e > 0.0) & (e * e >= CONVEX_MIN * CONVEX_MIN * linalg::dot(d, d));
-                // A nearly flat boundary that bends inwards between cells of different colour is a contact (a
-                // ball on the floor, a can against a crate: the surfaces meet tangentially, so the concave
-                // crease is too faint for the normals), not one surface.
-                let step = (ca[0] - cb[0]).abs().max((ca[1] - cb[1]).abs()).max((ca[2] - cb[2]).abs());
-                let contact = (e < 0.0) & (step > COLOUR_STEP);
-                let coplanar = cos >= cos_plane;
-                let joins = convex | ((cos >= cos_flat) & !contact);
-                link::NORMALS
-                    | (u16::from(coplanar) * link::COPLANAR)
-                    | (u16::from(convex) * link::CONVEX)
-                    | (u16::from(joins) * link::JOINS)
+        for (chunk, words) in words.chunks_mut(4).enumerate() {
+            let x0 = 4 * chunk;
+            let (a, right, down) = (
+                Surfels::load(points, normals, rgbs, x0),
+                Surfels::load(points, normals, rgbs, x0 + 1),
+                Surfels::load(points_below, normals_below, rgbs_below, x0),
+            );
+            let (to_right, to_down) = (a.meet(&right, cosines), a.meet(&down, cosines));
+            // The link bits count only where both cells have a surfel and the neighbour lies on the surface.
+            let word = i32x4::from(lanes::<u16, 4>(words, 0, false).map(i32::from));
+            let linked = |ok: f32x4, bit: u16| {
+                bytemuck::cast::<f32x4, i32x4>(ok) & (word & i32x4::splat(i32::from(bit))).simd_ne(i32x4::ZERO)
             };
-            if *word & link::RIGHT != 0 {
-                if let Some(b) = right {
-                    *word |= meet(b, colour(here, cx + 1));
-                }
-            }
-            if *word & link::DOWN != 0 {
-                if let Some(b) = surfel(below, cx) {
-                    *word |= meet(b, colour(below, cx)) << link::DOWN_SHIFT;
-                }
+            let (with_right, with_down) = (linked(a.ok & right.ok, link::RIGHT), linked(a.ok & down.ok, link::DOWN));
+            let word = word | (with_right & to_right) | ((with_down & to_down) << i32::from(link::DOWN_SHIFT));
+            for (out, &w) in words.iter_mut().zip(word.as_array()) {
+                *out = w as u16;
             }
         }
     }
@@ -1417,6 +1480,46 @@ fn write_masks(
                 Some(centre) => near_interval((lo, hi), centre, raw_jump(frame, params, step, centre)),
                 None => NOWHERE,
             };
+            // The usual 4 × 4-pixel cell, two pixel rows at a time; the instance's box once per cell from the
+            // columns and rows that took it (the same box as row by row below).
+            if let (true, Some((start, span))) =
+                (u1 - u0 == 4 && v1 - v0 == 4, u16::try_from(near.1).ok().map(|s| (near.0, s)))
+            {
+                let (start, span, id) = (u16x8::splat(start), u16x8::splat(span), u16x8::splat(instance));
+                let (mut columns, mut rows_hit) = (0u32, 0u32);
+                for (pair, v) in [v0, v0 + 2].into_iter().enumerate() {
+                    let (first, second) = (v * w + u0, (v + 1) * w + u0);
+                    let depths = match (frame.depth.get(first..first + 4), frame.depth.get(second..second + 4)) {
+                        (Some(a), Some(b)) => u16x8::from(core::array::from_fn(|k| {
+                            if k < 4 { a.get(k) } else { b.get(k - 4) }.copied().unwrap_or(0)
+                        })),
+                        _ => continue,
+                    };
+                    let on_surface = (depths - start).simd_le(span);
+                    let out = (on_surface & id).to_array();
+                    for (row, lanes) in [first, second].into_iter().zip(out.chunks_exact(4)) {
+                        if let Some(ids) = ids.get_mut(row..row + 4) {
+                            ids.copy_from_slice(lanes);
+                        }
+                    }
+                    let hits = on_surface.to_bitmask();
+                    let (upper, lower) = (hits & 0xf, hits >> 4);
+                    columns |= upper | lower;
+                    rows_hit |= (u32::from(upper != 0) | u32::from(lower != 0) << 1) << (2 * pair);
+                }
+                if let (true, Some(inst)) = (columns != 0, instances.get_mut(instance as usize - 1)) {
+                    let (left, right) = (columns.trailing_zeros() as usize, 31 - columns.leading_zeros() as usize);
+                    let (top, bottom) = (rows_hit.trailing_zeros() as usize, 31 - rows_hit.leading_zeros() as usize);
+                    let b = &mut inst.bbox;
+                    *b = [
+                        b[0].min((u0 + left) as u16),
+                        b[1].min((v0 + top) as u16),
+                        b[2].max((u0 + right) as u16),
+                        b[3].max((v0 + bottom) as u16),
+                    ];
+                }
+                continue;
+            }
             for v in (v0..v1).rev() {
                 let (depth, row) = match (frame.depth.get(v * w + u0..v * w + u1), ids.get_mut(v * w + u0..v * w + u1))
                 {
@@ -1487,15 +1590,22 @@ pub fn segment(
     let (colours, rest) = rest.split_at_mut((2 * n).min(rest.len()));
     let (links, rest) = rest.split_at_mut(n.min(rest.len()));
     // The cells' points in the rest of the id image (6 u16 per cell, after at most one to align them for f32:
-    // 13 u16 per cell in all, and a grid of 4-pixel cells has 16 pixels' ids per cell). The layout leaves room
-    // for every cell; one that found none would have no point.
-    let (_, points, _) = bytemuck::pod_align_to_mut::<u16, Vec3>(rest);
-    let room = points.len().min(n);
-    let points = points.get_mut(..room).unwrap_or(&mut []);
-    Grid::fill(frame, params, layout, points, colours);
-    let grid = Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, points, normals: &[], links: &[] };
-    grid.surfels(normals, links);
-    let grid = Grid { normals, ..grid };
+    // 13 u16 per cell in all, and a grid of 4-pixel cells has 16 pixels' ids per cell), coordinate by coordinate.
+    // The layout leaves room for every cell; one that found none would have no point.
+    let (_, coordinates, _) = bytemuck::pod_align_to_mut::<u16, f32>(rest);
+    let room = (coordinates.len() / 3).min(n);
+    let (xs, rest) = coordinates.split_at_mut(room);
+    let (ys, rest) = rest.split_at_mut(room);
+    let zs = rest.get_mut(..room).unwrap_or(&mut []);
+    Grid::fill(frame, params, layout, [&mut *xs, &mut *ys, &mut *zs], colours);
+    let points = [&*xs, &*ys, &*zs];
+    // The normals component by component (n u16 each).
+    let (nx, rest) = normals.split_at_mut(n.min(normals.len()));
+    let (ny, nz) = rest.split_at_mut(n.min(rest.len()));
+    let grid =
+        Grid { frame, params, step: layout.0, cols: layout.1, rows: layout.2, points, normals: [&[]; 3], links: &[] };
+    grid.surfels([&mut *nx, &mut *ny, &mut *nz], links);
+    let grid = Grid { normals: [&*nx, &*ny, &*nz], ..grid };
     link_cells(&grid, colours, params, links);
     let grid = Grid { links, ..grid };
     // 1. Supporting planes ([`mark_planes`]): their cells are marked in their colour word.
@@ -1649,10 +1759,13 @@ mod tests {
 
     /// A grid of [`COLS`] × [`ROWS`] cells of one surface facing the camera at `z` (every neighbour on it): its
     /// points (5 mm apart), quantised normals and link words.
-    fn flat_cells(z: f32) -> ([Vec3; CELLS], [u16; 3 * CELLS], [u16; CELLS]) {
-        let points = core::array::from_fn(|i| [(i % COLS) as f32 * 0.005, (i / COLS) as f32 * 0.005, z]);
-        let normal = [0.0, 0.0, -1.0f32].map(|c| crate::supervoxel::quantise_unit(c) as u16);
-        let normals = core::array::from_fn(|k| normal[k % 3]);
+    fn flat_cells(z: f32) -> ([[f32; CELLS]; 3], [[u16; CELLS]; 3], [u16; CELLS]) {
+        let points = [
+            core::array::from_fn(|i| (i % COLS) as f32 * 0.005),
+            core::array::from_fn(|i| (i / COLS) as f32 * 0.005),
+            [z; CELLS],
+        ];
+        let normals = [0.0, 0.0, -1.0f32].map(|c| [crate::supervoxel::quantise_unit(c) as u16; CELLS]);
         let links = core::array::from_fn(|i| {
             let (cx, cy) = (i % COLS, i / COLS);
             (u16::from(cx > 0) * link::LEFT)
@@ -1678,21 +1791,22 @@ mod tests {
             hi: [x0 + 0.005, 0.025, z],
             instance,
         };
-        let run = |points: &[Vec3; CELLS], colours: &[u16], planes: &Planes, instances: &mut [u16; CELLS], extent| {
-            let params = Params { seg_max_extent: extent, ..Params::default() };
-            let grid = Grid {
-                frame: &frame,
-                params: &params,
-                step: 4,
-                cols: COLS,
-                rows: ROWS,
-                points,
-                normals: &normals,
-                links: &links,
+        let run =
+            |points: &[[f32; CELLS]; 3], colours: &[u16], planes: &Planes, instances: &mut [u16; CELLS], extent| {
+                let params = Params { seg_max_extent: extent, ..Params::default() };
+                let grid = Grid {
+                    frame: &frame,
+                    params: &params,
+                    step: 4,
+                    cols: COLS,
+                    rows: ROWS,
+                    points: points.each_ref().map(|plane| &plane[..]),
+                    normals: normals.each_ref().map(|plane| &plane[..]),
+                    links: &links,
+                };
+                let mut candidates = [candidate(1, 0.0), candidate(2, 0.015)];
+                fill_creases(&grid, colours, planes, instances, &mut candidates, &mut [0u16; CELLS])
             };
-            let mut candidates = [candidate(1, 0.0), candidate(2, 0.015)];
-            fill_creases(&grid, colours, planes, instances, &mut candidates, &mut [0u16; CELLS])
-        };
         let row = |instances: &[u16; CELLS], cy: usize| -> [u16; COLS] {
             core::array::from_fn(|cx| instances[cy * COLS + cx])
         };
