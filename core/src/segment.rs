@@ -1005,6 +1005,7 @@ fn components(
 ) -> u32 {
     candidates.clear();
     let mut truncated = 0;
+    let mut open: Option<Run> = None;
     // One pass in cell order: a root (its component's lowest cell) comes before the rest of its component, so
     // each root's candidate is made before its cells' points are added; `parents` is flattened on the way (each
     // cell then points at its root).
@@ -1024,13 +1025,61 @@ fn components(
         }
         let root = flatten_entry(parents, i);
         let candidate = counts.get(root).and_then(|&slot| (slot as usize).checked_sub(1));
-        if let (Some(c), Some(p)) = (candidate.and_then(|k| candidates.get_mut(k)), grid.point(i)) {
-            c.moments.add(p, 1.0);
-            c.lo = linalg::min_elem(c.lo, p);
-            c.hi = linalg::max_elem(c.hi, p);
+        if let (Some(k), Some(p)) = (candidate, grid.point(i)) {
+            // A run of one candidate's cells is added to its sums in registers ([`linalg::MomentLanes`]),
+            // written back when the run ends: the same sums in the same order.
+            if open.as_ref().is_none_or(|run| run.candidate != k) {
+                if let Some(run) = open.take() {
+                    run.close(candidates);
+                }
+                open = candidates.get(k).map(|c| Run::open(k, c));
+            }
+            if let Some(run) = open.as_mut() {
+                run.add(p);
+            }
         }
     }
+    if let Some(run) = open.take() {
+        run.close(candidates);
+    }
     truncated
+}
+
+/// A candidate of [`components`] while a run of its cells is added: its moments in registers and its box.
+struct Run {
+    candidate: usize,
+    moments: linalg::MomentLanes,
+    lo: f32x4,
+    hi: f32x4,
+}
+
+impl Run {
+    /// Candidate `k`, `c`, as it stands.
+    fn open(candidate: usize, c: &Candidate) -> Run {
+        let lanes = |v: Vec3| f32x4::from([v[0], v[1], v[2], 0.0]);
+        Run { candidate, moments: linalg::MomentLanes::from(&c.moments), lo: lanes(c.lo), hi: lanes(c.hi) }
+    }
+
+    /// Adds a cell's point to the moments and the box.
+    #[inline(always)]
+    fn add(&mut self, p: Vec3) {
+        self.moments.add(p);
+        let p = f32x4::from([p[0], p[1], p[2], 0.0]);
+        self.lo = self.lo.min(p);
+        self.hi = self.hi.max(p);
+    }
+
+    /// Writes the candidate back into `candidates`.
+    fn close(&self, candidates: &mut [Candidate]) {
+        if let Some(c) = candidates.get_mut(self.candidate) {
+            c.moments = self.moments.moments();
+            let xyz = |v: f32x4| -> Vec3 {
+                let [x, y, z, _] = v.to_array();
+                [x, y, z]
+            };
+            (c.lo, c.hi) = (xyz(self.lo), xyz(self.hi));
+        }
+    }
 }
 
 /// Hangs the higher of two different roots `a`, `b` of `parents` under the lower (as [`union_find::union`]), whose
