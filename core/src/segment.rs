@@ -658,23 +658,6 @@ struct Surfels {
 
 #[allow(clippy::indexing_slicing)] // every index is a lane (k < 4: `from_fn`'s) or a coordinate (c < 3) of a fixed-size array; none comes from the input
 impl Surfels {
-    /// Cells `first..first + 4` and `first + 1..first + 5` (the right neighbours) of a row's points and quantised
-    /// normals (coordinate by coordinate) and colour words; none beyond the row.
-    #[inline(always)]
-    fn load_pair(points: [&[f32]; 3], normals: [&[u16]; 3], colours: &[u16], first: usize) -> (Self, Self) {
-        let p: [[f32; 5]; 3] = points.map(|row| lanes(row, first, false));
-        let q: [[u16; 5]; 3] = normals.map(|row| lanes(row, first, false));
-        let words: [u16; 10] = lanes(colours, 2 * first, false);
-        let at = |shift: usize| {
-            Surfels::new(
-                p.map(|p| core::array::from_fn(|k| p[k + shift])),
-                q.map(|q| core::array::from_fn(|k| q[k + shift])),
-                core::array::from_fn(|k| words[k + 2 * shift]),
-            )
-        };
-        (at(0), at(1))
-    }
-
     /// Cells `first..first + 4` of a row's points and quantised normals (coordinate by coordinate) and colour
     /// words; none beyond the row.
     #[inline(always)]
@@ -691,11 +674,12 @@ impl Surfels {
     fn new(p: [[f32; 4]; 3], q: [[u16; 4]; 3], words: [u16; 8]) -> Self {
         let p = p.map(f32x4::from);
         let n = q.map(|q| f32x4::from(q.map(|q| crate::supervoxel::dequantise_unit(q as i16))));
-        let colour = [
-            i32x4::from(core::array::from_fn(|k| i32::from(words[2 * k] & 0xff))),
-            i32x4::from(core::array::from_fn(|k| i32::from(words[2 * k] >> 8))),
-            i32x4::from(core::array::from_fn(|k| i32::from(words[2 * k + 1] & 0xff))),
-        ];
+        // A cell's two colour words as one lane, r | g << 8 | b << 16 (and the blue word's high byte above).
+        let pairs = i32x4::from(core::array::from_fn(|k| {
+            i32::from(words[2 * k]) | i32::from(words[2 * k + 1]) << 16
+        }));
+        let byte = i32x4::splat(0xff);
+        let colour = [pairs & byte, (pairs >> 8) & byte, (pairs >> 16) & byte];
         let zero = f32x4::ZERO;
         let ok = p[2].simd_ne(zero) & (n[0].simd_ne(zero) | n[1].simd_ne(zero) | n[2].simd_ne(zero));
         Surfels { p, n, colour, ok }
@@ -753,8 +737,9 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
         let words = links.get_mut(cy * grid.cols..(cy + 1) * grid.cols).unwrap_or(&mut []);
         for (chunk, words) in words.chunks_mut(4).enumerate() {
             let x0 = 4 * chunk;
-            let ((a, right), down) = (
-                Surfels::load_pair(points, normals, rgbs, x0),
+            let (a, right, down) = (
+                Surfels::load(points, normals, rgbs, x0),
+                Surfels::load(points, normals, rgbs, x0 + 1),
                 Surfels::load(points_below, normals_below, rgbs_below, x0),
             );
             let (to_right, to_down) = (a.meet(&right, cosines), a.meet(&down, cosines));

@@ -112,9 +112,12 @@ fn segmenter_frames<P: Profile>(
     let mut instances = vec![Instance { id: 0, class: 0, score: 0.0, bbox: [0; 4] }; SEGMENTER_INSTANCES];
     let mut mapper = Mapper::new(&mut *storage, params).expect("valid parameters");
     let (mut out, mut ms, mut reports) = (Vec::new(), Vec::new(), Vec::new());
+    // One id image for every frame, as `m2smap run` keeps one (a fresh one per frame would time the kernel
+    // mapping and zeroing its pages on the first call).
+    let mut ids: Vec<u16> = Vec::new();
     for input in frames {
         let view = input.frame.view_posed(camera, input.pose.as_ref());
-        let mut ids = vec![0u16; view.pixels()];
+        ids.resize(view.pixels(), 0);
         let mut k = 0;
         for _ in 0..REPS {
             // The segmenter alone first (it leaves the map and tracks as they were), then the whole frame.
@@ -129,7 +132,7 @@ fn segmenter_frames<P: Profile>(
             width: input.frame.width,
             height: input.frame.height,
             instances: instances[..k].to_vec(),
-            pixels: Pixels::Ids(ids),
+            pixels: Pixels::Ids(ids.clone()),
         };
         out.push(Input { frame: input.frame.clone(), masks: Some(masks), pose: input.pose });
     }
