@@ -255,7 +255,6 @@ impl<'f> Grid<'f> {
     #[inline(never)]
     #[allow(clippy::indexing_slicing)] // every index is a lane (k < SURFEL_LANES: `from_fn`'s or a loop's over the lanes), a coordinate (c < 3) or a side (< 4) of a fixed-size array; none comes from the input
     fn surfels(&self, normals: [&mut [u16]; 3], links: &mut [u16]) {
-        type Lanes = [f32; SURFEL_LANES];
         let cols = self.cols;
         // Coordinate c of row cy's cells (empty beyond the grid).
         let row = |c: usize, cy: Option<usize>| -> &[f32] {
@@ -269,42 +268,39 @@ impl<'f> Grid<'f> {
             for x0 in (0..cols).step_by(SURFEL_LANES) {
                 // The cells' points and their left, right, upper and lower neighbours' (all 0 where there is
                 // none), coordinate by coordinate.
-                let mut p = [[0.0; SURFEL_LANES]; 3];
-                let mut side = [[[0.0; SURFEL_LANES]; 3]; 4];
-                let window = |row: &[f32], x: usize| -> Option<[f32; SURFEL_LANES + 2]> {
-                    row.get(x..x + SURFEL_LANES + 2)?.try_into().ok()
+                // Inside the grid (the batch's cells, their left and right neighbours and the rows above and below
+                // them all there) each side's lanes are one read; at the grid's edges a lane beyond it is 0.
+                let inside = x0 >= 1 && x0 + SURFEL_LANES < cols && cy >= 1 && cy + 1 < self.rows;
+                let direct = |row: &[f32], start: usize| -> f32x4 {
+                    row.get(start..start + SURFEL_LANES)
+                        .and_then(|s| <[f32; SURFEL_LANES]>::try_from(s).ok())
+                        .map_or(f32x4::ZERO, f32x4::from)
                 };
-                let column = |row: &[f32]| -> Option<Lanes> { row.get(x0..x0 + SURFEL_LANES)?.try_into().ok() };
-                let inside = x0.checked_sub(1).and_then(|x| {
-                    let rows: [Option<([f32; SURFEL_LANES + 2], Lanes, Lanes)>; 3] =
-                        core::array::from_fn(|c| Some((window(here[c], x)?, column(above[c])?, column(below[c])?)));
-                    match rows {
-                        [Some(a), Some(b), Some(c)] => Some([a, b, c]),
-                        _ => None,
-                    }
-                });
-                if let Some(rows) = inside {
-                    // Inside the grid: the batch's cells, their left and right neighbours and the rows above and
-                    // below them are slices.
-                    for (c, (window, up, down)) in rows.into_iter().enumerate() {
-                        p[c] = core::array::from_fn(|k| window[k + 1]);
-                        side[0][c] = core::array::from_fn(|k| window[k]);
-                        side[1][c] = core::array::from_fn(|k| window[k + 2]);
-                        side[2][c] = up;
-                        side[3][c] = down;
-                    }
+                let (p, side): ([f32x4; 3], [[f32x4; 3]; 4]) = if inside {
+                    (
+                        core::array::from_fn(|c| direct(here[c], x0)),
+                        [
+                            core::array::from_fn(|c| direct(here[c], x0 - 1)),
+                            core::array::from_fn(|c| direct(here[c], x0 + 1)),
+                            core::array::from_fn(|c| direct(above[c], x0)),
+                            core::array::from_fn(|c| direct(below[c], x0)),
+                        ],
+                    )
                 } else {
-                    for c in 0..3 {
-                        p[c] = lanes(here[c], x0, false);
-                        side[0][c] = lanes(here[c], x0, true);
-                        side[1][c] = lanes(here[c], x0 + 1, false);
-                        side[2][c] = lanes(above[c], x0, false);
-                        side[3][c] = lanes(below[c], x0, false);
-                    }
-                }
-                let z = p[2];
-                let jump = f32x4::from(z.map(|z| self.jump(z)));
-                let (p, side) = (p.map(f32x4::from), side.map(|s| s.map(f32x4::from)));
+                    let load = |row: &[f32], first: usize, before: bool| {
+                        f32x4::from(lanes::<f32, SURFEL_LANES>(row, first, before))
+                    };
+                    (
+                        core::array::from_fn(|c| load(here[c], x0, false)),
+                        [
+                            core::array::from_fn(|c| load(here[c], x0, true)),
+                            core::array::from_fn(|c| load(here[c], x0 + 1, false)),
+                            core::array::from_fn(|c| load(above[c], x0, false)),
+                            core::array::from_fn(|c| load(below[c], x0, false)),
+                        ],
+                    )
+                };
+                let jump = f32x4::from(p[2].to_array().map(|z| self.jump(z)));
                 let (zero, z) = (f32x4::ZERO, p[2]);
                 let has_point = z.simd_ne(zero);
                 // A neighbour lies on the cell's surface when it has a point within the jump of the cell's depth.
@@ -675,9 +671,7 @@ impl Surfels {
         let p = p.map(f32x4::from);
         let n = q.map(|q| f32x4::from(q.map(|q| crate::supervoxel::dequantise_unit(q as i16))));
         // A cell's two colour words as one lane, r | g << 8 | b << 16 (and the blue word's high byte above).
-        let pairs = i32x4::from(core::array::from_fn(|k| {
-            i32::from(words[2 * k]) | i32::from(words[2 * k + 1]) << 16
-        }));
+        let pairs = i32x4::from(core::array::from_fn(|k| i32::from(words[2 * k]) | i32::from(words[2 * k + 1]) << 16));
         let byte = i32x4::splat(0xff);
         let colour = [pairs & byte, (pairs >> 8) & byte, (pairs >> 16) & byte];
         let zero = f32x4::ZERO;
