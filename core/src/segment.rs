@@ -490,18 +490,19 @@ fn block_means_4(
         let (start, span) = near;
         let (mut sum, mut n) = (0u32, 0u32);
         if (0..=i32::from(u16::MAX / 16)).contains(&span) {
-            let span = span as u16;
-            let (mut offsets, mut count) = (0u16, 0u16);
-            for row in [a, b, c, d] {
-                for &r in row {
-                    let offset = r.wrapping_sub(start);
-                    let ok = offset <= span;
-                    offsets = offsets.wrapping_add(if ok { offset } else { 0 });
-                    count += u16::from(ok);
-                }
+            // Two pixel rows per eight lanes.
+            let (start, span) = (u16x8::splat(start), u16x8::splat(span as u16));
+            let (mut offsets, mut count) = (u16x8::ZERO, u16x8::ZERO);
+            for (upper, lower) in [(a, b), (c, d)] {
+                let [u0, u1, u2, u3] = *upper;
+                let [l0, l1, l2, l3] = *lower;
+                let offset = u16x8::from([u0, u1, u2, u3, l0, l1, l2, l3]) - start;
+                let ok = offset.simd_le(span);
+                offsets += ok & offset;
+                count += ok & u16x8::ONE;
             }
-            n = u32::from(count);
-            sum = u32::from(offsets) + n * u32::from(start);
+            n = u32::from(count.reduce_add());
+            sum = u32::from(offsets.reduce_add()) + n * u32::from(near.0);
         } else {
             for row in [a, b, c, d] {
                 let (s, k) = sum_near(row, near);
