@@ -1907,6 +1907,24 @@ mod tests {
     }
 
     #[test]
+    fn quantise_units_rounds_as_quantise_unit() {
+        // Every halfway point of the 1/32767 grid and its neighbours one ulp either side, a dense sweep past
+        // [−1, 1] and the edges, four lanes at a time: the values of the scalar rounding.
+        let halves = (-32768i32..=32767).flat_map(|k| {
+            let half = (k as f32 + 0.5) / 32767.0;
+            [half, f32::from_bits(half.to_bits() + 1), f32::from_bits(half.to_bits().wrapping_sub(1))]
+        });
+        let sweep = (0..=400_000u32).map(|i| -1.1 + 2.2 * i as f32 / 400_000.0);
+        let mut xs = halves.chain(sweep).chain([-1.0, 1.0, 0.0, -0.0, 2.0, -2.0, 0.5, -0.5]);
+        while let (Some(a), Some(b), Some(c), Some(d)) = (xs.next(), xs.next(), xs.next(), xs.next()) {
+            let lanes = quantise_units(f32x4::from([a, b, c, d])).to_array();
+            for (x, q) in [a, b, c, d].into_iter().zip(lanes) {
+                assert_eq!(q, i32::from(crate::supervoxel::quantise_unit(x)), "x = {x:e}");
+            }
+        }
+    }
+
+    #[test]
     fn a_frame_without_pixels_segments_into_nothing() {
         // `segment` is public: a frame that `Mapper::segment` would refuse must not panic either.
         let params = Params::default();
