@@ -267,9 +267,9 @@ impl<'f> Grid<'f> {
             let (here, above, below) = (rows(Some(cy)), rows(cy.checked_sub(1)), rows(Some(cy + 1)));
             for x0 in (0..cols).step_by(SURFEL_LANES) {
                 // The cells' points and their left, right, upper and lower neighbours' (all 0 where there is
-                // none), coordinate by coordinate.
-                // Inside the grid (the batch's cells, their left and right neighbours and the rows above and below
-                // them all there) each side's lanes are one read; at the grid's edges a lane beyond it is 0.
+                // none), coordinate by coordinate. Inside the grid (the batch's cells, their left and right
+                // neighbours and the rows above and below them all there) each side's lanes are one read; at the
+                // grid's edges a lane beyond it is 0.
                 let inside = x0 >= 1 && x0 + SURFEL_LANES < cols && cy >= 1 && cy + 1 < self.rows;
                 let direct = |row: &[f32], start: usize| -> f32x4 {
                     row.get(start..start + SURFEL_LANES)
@@ -399,7 +399,8 @@ fn lanes<T: Copy + Default, const L: usize>(row: &[T], first: usize, before: boo
 }
 
 /// [`crate::supervoxel::quantise_unit`] of four unit-vector components at once: the same rounding (half away
-/// from zero), the same values.
+/// from zero), the same values for every number (a NaN lane, which the surfels never hold, would give −32767
+/// here and 0 there).
 #[inline(always)]
 fn quantise_units(x: f32x4) -> i32x4 {
     let y = x.max(f32x4::splat(-1.0)).min(f32x4::ONE) * f32x4::splat(32767.0);
@@ -624,7 +625,7 @@ type Planes = heapless::Vec<(Vec3, Vec3), MAX_PLANES>;
 const GROW_CHUNK: usize = 64;
 /// Cells per run of [`Grid::fill`]'s loops.
 const FILL_RUN: usize = 32;
-/// Cells per batch of [`Grid::surfels`].
+/// Cells per batch of [`Grid::surfels`]: the four lanes of an `f32x4`.
 const SURFEL_LANES: usize = 4;
 
 /// Bit of a cell's blue colour word (the colour takes 8 bits) that marks it as a supporting plane's cell.
@@ -1034,7 +1035,7 @@ struct Run {
 }
 
 impl Run {
-    /// Candidate `k`, `c`, as it stands.
+    /// Candidate number `candidate`, `c`, as it stands.
     fn open(candidate: usize, c: &Candidate) -> Run {
         let lanes = |v: Vec3| f32x4::from([v[0], v[1], v[2], 0.0]);
         Run { candidate, moments: linalg::MomentLanes::from(&c.moments), lo: lanes(c.lo), hi: lanes(c.hi) }
