@@ -732,6 +732,11 @@ fn link_cells(grid: &Grid<'_>, colours: &[u16], params: &Params, links: &mut [u1
         let ((points, normals, rgbs), (points_below, normals_below, rgbs_below)) = (row(cy), row(cy + 1));
         let words = links.get_mut(cy * grid.cols..(cy + 1) * grid.cols).unwrap_or(&mut []);
         for (chunk, words) in words.chunks_mut(4).enumerate() {
+            // Four cells none of which has its right or lower neighbour on its surface (no depth there) have no
+            // link to complete.
+            if words.iter().fold(0, |m, &w| m | w) & (link::RIGHT | link::DOWN) == 0 {
+                continue;
+            }
             let x0 = 4 * chunk;
             let (a, right, down) = (
                 Surfels::load(points, normals, rgbs, x0),
