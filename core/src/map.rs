@@ -209,6 +209,11 @@ impl MapPlane<'_> {
 }
 
 impl MapSq {
+    /// The shape `sq` alone (no instance, class, score or track; a whole view), for sampling its surface.
+    pub fn of_shape(sq: Superquadric) -> MapSq {
+        MapSq { sq, instance: 0, class: 0, score: 0.0, track: 0, partial: false }
+    }
+
     /// Surface points about [`SQ_SAMPLE_SPACING`] apart, kept where the outward normal faces the camera at the
     /// origin (a superquadric with ε ≤ 2 is convex: this is its visible side). The grid is that of
     /// [`MapSq::for_each_surface_sample`].

@@ -1473,17 +1473,14 @@ fn neighbour_shape_probes(other: &Superquadric, object: &Object, reach: (Vec3, V
     let spacing = (largest / 3.0).max(0.01);
     let mut slots = out.iter_mut().take(OBSTACLE_PROBES);
     let mut n = 0;
-    MapSq { sq: *other, instance: 0, class: 0, score: 0.0, track: 0, partial: false }.for_each_surface_sample_spaced(
-        spacing,
-        |p| {
-            if within_box(p, reach.0, reach.1, 0.0) {
-                if let Some(slot) = slots.next() {
-                    *slot = p;
-                    n += 1;
-                }
+    MapSq::of_shape(*other).for_each_surface_sample_spaced(spacing, |p| {
+        if within_box(p, reach.0, reach.1, 0.0) {
+            if let Some(slot) = slots.next() {
+                *slot = p;
+                n += 1;
             }
-        },
-    );
+        }
+    });
     n
 }
 
@@ -1546,6 +1543,7 @@ fn map_gmm(g: &Gaussian) -> MapGmm {
         support_ratio: g.support_ratio,
     }
 }
+
 #[cfg(test)]
 mod separating_face_tests {
     //! A neighbour's flat-faced shape bounds an object beside it by its face towards the object

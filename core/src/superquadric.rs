@@ -2112,7 +2112,7 @@ pub fn front_view(sq: &Superquadric, frame: &Frame<'_>, params: &Params, out: &m
         Visible,
     }
     let spacing = front_spacing(sq);
-    let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0, partial: false };
+    let shape = crate::map::MapSq::of_shape(*sq);
     let judge = |p: Vec3, facing: f32| -> Seen {
         let (pixel, free_until, hidden_from) = match observed_at(frame, params, p, 2) {
             Observed::Outside => return Seen::Outside,
@@ -2196,7 +2196,7 @@ pub fn reaches_outside_image(sq: &Superquadric, frame: &Frame<'_>) -> bool {
 
 /// [`reaches_outside_image`] sample by sample.
 fn samples_outside_image(sq: &Superquadric, frame: &Frame<'_>) -> bool {
-    let shape = crate::map::MapSq { sq: *sq, instance: 0, class: 0, score: 0.0, track: 0, partial: false };
+    let shape = crate::map::MapSq::of_shape(*sq);
     let mut outside = false;
     shape.for_each_sample_spaced(front_spacing(sq), |p, _| outside |= pixel_of(frame, p).is_none());
     outside
