@@ -351,6 +351,13 @@ impl Eigen3 {
     }
 }
 
+/// The variance of a distribution with covariance `m` along unit direction `n`: nᵀ·m·n (m²).
+pub fn variance_along(m: &Sym3, n: Vec3) -> f32 {
+    let [xx, xy, xz, yy, yz, zz] = *m;
+    let [x, y, z] = n;
+    xx * x * x + yy * y * y + zz * z * z + 2.0 * (xy * x * y + xz * x * z + yz * y * z)
+}
+
 /// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations: sweeps stop when the
 /// off-diagonal mass falls below 1e-6 of the diagonal (f32 precision; usually 3–4 sweeps), at most 16.
 /// Deterministic, no recursion, no allocation.
