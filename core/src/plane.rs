@@ -16,6 +16,7 @@ use crate::gmm::{Gaussian, ROLE_PLANE};
 use crate::linalg::{self, Eigen3, Vec3};
 use crate::masks::MaskSet;
 use crate::params::Params;
+use crate::points::PixelWindow;
 use crate::supervoxel::{self, SampledPoint, Voxel};
 
 /// Cells per side of a plane's occupancy grid (±2 m around the centroid at g_p = 5 cm).
@@ -218,7 +219,14 @@ pub fn fill_cells(
     if planes.is_empty() {
         return;
     }
-    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, sampled, |p, v| {
+    // Only the pixels of the planes' Gaussians can hold their points: each Gaussian's pixel box holds every
+    // one of its points ([`crate::gmm::point_statistics`]), and a window's pass gives exactly the whole pass's
+    // points inside it.
+    let window = gaussians
+        .iter()
+        .filter(|g| g.role == ROLE_PLANE)
+        .fold(PixelWindow::EMPTY, |w, g| w.union(PixelWindow::from_box(g.pixel_bbox)));
+    supervoxel::for_each_voxel_point_in(frame, params, voxel_masks, voxels, slots, sampled, window, |p, v| {
         let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
         if g.role != ROLE_PLANE {
             return;
