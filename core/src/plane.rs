@@ -176,7 +176,7 @@ impl Plane {
     /// ([`Params::depth_tolerance`]) of the plane through the centroid. Only such a point shows where the plane
     /// was seen, so only such points mark cells.
     pub fn is_on_plane(&self, p: Vec3, params: &Params) -> bool {
-        linalg::plane_distance(p, self.centroid, self.normal) <= params.depth_tolerance(p[2])
+        on_plane(p, self.centroid, self.normal, params)
     }
 
     fn occupy(&mut self, a: usize, b: usize) {
@@ -226,22 +226,50 @@ pub fn fill_cells(
         .iter()
         .filter(|g| g.role == ROLE_PLANE)
         .fold(PixelWindow::EMPTY, |w, g| w.union(PixelWindow::from_box(g.pixel_bbox)));
-    supervoxel::for_each_voxel_point_in(frame, params, voxel_masks, voxels, slots, sampled, window, |p, v| {
-        let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
-        if g.role != ROLE_PLANE {
-            return;
-        }
-        let Some(plane) = planes.get_mut(g.owner as usize) else { return };
-        // A support point off the plane (an object's foot, a chair leg in the floor's Gaussian) would claim the
-        // plane's surface where the camera saw something else.
-        if !plane.is_on_plane(p.xyz, params) {
-            return;
-        }
-        match plane.cell_of(p.xyz, params.g_p) {
-            Some((a, b)) => plane.occupy(a, b),
-            None => plane.clipped_points += 1,
-        }
-    });
+    // A point on none of the planes marks no cell: it is passed over before its voxel is looked up (a hash
+    // probe per point on the pass over the pixels). With more planes than the copy holds, every point is looked up.
+    let mut surfaces = [([0.0f32; 3], [0.0f32; 3]); PREFILTER_PLANES];
+    for (s, p) in surfaces.iter_mut().zip(planes.iter()) {
+        *s = (p.centroid, p.normal);
+    }
+    let surfaces = surfaces.get(..planes.len()).unwrap_or(&[]);
+    let all = planes.len() > PREFILTER_PLANES;
+    let wanted = |p: &crate::points::Point| all || surfaces.iter().any(|&(c, n)| on_plane(p.xyz, c, n, params));
+    supervoxel::for_each_wanted_voxel_point_in(
+        frame,
+        params,
+        voxel_masks,
+        voxels,
+        slots,
+        sampled,
+        window,
+        wanted,
+        |p, v| {
+            let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
+            if g.role != ROLE_PLANE {
+                return;
+            }
+            let Some(plane) = planes.get_mut(g.owner as usize) else { return };
+            // A support point off the plane (an object's foot, a chair leg in the floor's Gaussian) would claim the
+            // plane's surface where the camera saw something else.
+            if !plane.is_on_plane(p.xyz, params) {
+                return;
+            }
+            match plane.cell_of(p.xyz, params.g_p) {
+                Some((a, b)) => plane.occupy(a, b),
+                None => plane.clipped_points += 1,
+            }
+        },
+    );
+}
+
+/// Planes whose surfaces [`fill_cells`] tests before looking up a point's voxel (the mcu profile holds 8).
+const PREFILTER_PLANES: usize = 8;
+
+/// Whether point `p` lies within the depth tolerance at its depth ([`Params::depth_tolerance`]) of the plane
+/// through `centroid` with unit `normal` (camera frame, metres): [`Plane::is_on_plane`].
+fn on_plane(p: Vec3, centroid: Vec3, normal: Vec3, params: &Params) -> bool {
+    linalg::plane_distance(p, centroid, normal) <= params.depth_tolerance(p[2])
 }
 
 #[cfg(test)]

@@ -331,11 +331,29 @@ pub fn for_each_voxel_point_in(
     window: points::PixelWindow,
     f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
+    for_each_wanted_voxel_point_in(frame, params, masks, voxels, slots, sampled, window, |_| true, f);
+}
+
+/// [`for_each_voxel_point_in`] for the points that `wanted` keeps: a pass that needs only some points can skip
+/// the others before their voxel is looked up (on the pass over the pixels, a hash probe per point). The
+/// points `f` gets are those `wanted` keeps of the unfiltered pass, in its order, with the same voxels.
+#[allow(clippy::too_many_arguments)]
+pub fn for_each_wanted_voxel_point_in(
+    frame: &Frame<'_>,
+    params: &Params,
+    masks: Option<&MaskSet<'_>>,
+    voxels: &[Voxel],
+    slots: &[u16],
+    sampled: Option<&[SampledPoint]>,
+    window: points::PixelWindow,
+    wanted: impl Fn(&points::Point) -> bool,
+    f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
+) {
     // Two functions, each calling `f` once, so that each inlines it (the pass over the pixels is the code
     // the mcu profile runs, instruction for instruction).
     match sampled {
-        Some(list) => for_each_listed_point(frame, voxels, list, window, f),
-        None => for_each_resampled_point(frame, params, masks, voxels, slots, window, f),
+        Some(list) => for_each_listed_point(frame, voxels, list, window, wanted, f),
+        None => for_each_resampled_point(frame, params, masks, voxels, slots, window, wanted, f),
     }
 }
 
@@ -345,6 +363,7 @@ fn for_each_listed_point(
     voxels: &[Voxel],
     list: &[SampledPoint],
     window: points::PixelWindow,
+    wanted: impl Fn(&points::Point) -> bool,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     // The list is in pixel order: start at the window's first row, stop after its last.
@@ -360,11 +379,14 @@ fn for_each_listed_point(
         let i = s.v as usize * frame.width as usize + s.u as usize;
         let Some(&[r, g, b]) = frame.colour.get(3 * i..3 * i + 3) else { continue };
         let p = points::Point { u: s.u, v: s.v, xyz: s.xyz, rgb: [r, g, b] };
-        f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
+        if wanted(&p) {
+            f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
+        }
     }
 }
 
 /// [`for_each_voxel_point_in`] by sampling, back-projecting and hashing the points again.
+#[allow(clippy::too_many_arguments)]
 fn for_each_resampled_point(
     frame: &Frame<'_>,
     params: &Params,
@@ -372,12 +394,15 @@ fn for_each_resampled_point(
     voxels: &[Voxel],
     slots: &[u16],
     window: points::PixelWindow,
+    wanted: impl Fn(&points::Point) -> bool,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     let r = params.voxel_resolution;
     let mut slot_cache = SlotCache::default();
     points::for_each_point_in(frame, params, window, |p| {
-        f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
+        if wanted(p) {
+            f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
+        }
     });
 }
 
