@@ -226,8 +226,9 @@ pub fn fill_cells(
         .iter()
         .filter(|g| g.role == ROLE_PLANE)
         .fold(PixelWindow::EMPTY, |w, g| w.union(PixelWindow::from_box(g.pixel_bbox)));
-    // A point on none of the planes marks no cell: it is passed over before its voxel is looked up (a hash
-    // probe per point on the pass over the pixels). With more planes than the copy holds, every point is looked up.
+    // A point on none of the planes marks no cell: the pass over the pixels passes it over before looking up
+    // its voxel (a hash probe per point; voxelisation's list has the voxel already, and the closure below tests
+    // the point's own plane either way). With more planes than the copy holds, every point is looked up.
     let mut surfaces = [([0.0f32; 3], [0.0f32; 3]); PREFILTER_PLANES];
     for (s, p) in surfaces.iter_mut().zip(planes.iter()) {
         *s = (p.centroid, p.normal);

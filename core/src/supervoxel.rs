@@ -334,9 +334,10 @@ pub fn for_each_voxel_point_in(
     for_each_wanted_voxel_point_in(frame, params, masks, voxels, slots, sampled, window, |_| true, f);
 }
 
-/// [`for_each_voxel_point_in`] for the points that `wanted` keeps: a pass that needs only some points can skip
-/// the others before their voxel is looked up (on the pass over the pixels, a hash probe per point). The
-/// points `f` gets are those `wanted` keeps of the unfiltered pass, in its order, with the same voxels.
+/// [`for_each_voxel_point_in`] where a pass that needs only some points says which (`wanted`), so that the
+/// pass over the pixels skips the others before looking up their voxel (a hash probe per point). `wanted` is a
+/// hint: from voxelisation's list (where the voxel costs nothing) `f` gets every point, so `f` must still reject
+/// the points it has no use for. Every point `f` gets comes in the unfiltered pass's order with its voxel.
 #[allow(clippy::too_many_arguments)]
 pub fn for_each_wanted_voxel_point_in(
     frame: &Frame<'_>,
@@ -352,7 +353,7 @@ pub fn for_each_wanted_voxel_point_in(
     // Two functions, each calling `f` once, so that each inlines it (the pass over the pixels is the code
     // the mcu profile runs, instruction for instruction).
     match sampled {
-        Some(list) => for_each_listed_point(frame, voxels, list, window, wanted, f),
+        Some(list) => for_each_listed_point(frame, voxels, list, window, f),
         None => for_each_resampled_point(frame, params, masks, voxels, slots, window, wanted, f),
     }
 }
@@ -363,7 +364,6 @@ fn for_each_listed_point(
     voxels: &[Voxel],
     list: &[SampledPoint],
     window: points::PixelWindow,
-    wanted: impl Fn(&points::Point) -> bool,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     // The list is in pixel order: start at the window's first row, stop after its last.
@@ -379,9 +379,7 @@ fn for_each_listed_point(
         let i = s.v as usize * frame.width as usize + s.u as usize;
         let Some(&[r, g, b]) = frame.colour.get(3 * i..3 * i + 3) else { continue };
         let p = points::Point { u: s.u, v: s.v, xyz: s.xyz, rgb: [r, g, b] };
-        if wanted(&p) {
-            f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
-        }
+        f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
     }
 }
 
