@@ -12,7 +12,7 @@ FW_DECODE_MANIFEST := firmware/defmt-decode/Cargo.toml
 FW_DECODE := firmware/defmt-decode/target/debug/m2smap-defmt-decode
 QEMU := timeout 600 qemu-system-arm -machine mps2-an500 -nographic -semihosting-config enable=on,target=native -icount shift=0
 
-.PHONY: demo test lint bench eval sweep core-nostd budget firmware firmware-check fuzz
+.PHONY: demo test lint bench eval sweep core-nostd budget firmware firmware-check firmware-profile fuzz
 FUZZ_SECONDS ?= 600
 FUZZ_TARGETS := wire_decode mapper_frame masks_parse lists_parse
 
@@ -105,6 +105,13 @@ firmware:
 	@grep -qx 'heap allocations during process: 0' target/fw-run.txt || \
 		{ echo "firmware: FAILED: the core allocated on the heap during process (or the count is missing)"; exit 1; }
 	@echo "firmware: the Cortex-M7 maps, world deltas and segmenter masks equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"
+
+## Instructions per function of the firmware image `make firmware` built (its three frames and the segmenter):
+## QEMU logs every translated block and every execution (several GB in /tmp), firmware/tools/profile.py sums them.
+firmware-profile:
+	$(QEMU) -d in_asm,exec,nochain -D /tmp/m2smap-fw-exec.log -kernel $(FW_ELF) > /dev/null
+	python3 firmware/tools/profile.py /tmp/m2smap-fw-exec.log $(FW_ELF) 40
+	rm -f /tmp/m2smap-fw-exec.log
 
 ## `make firmware` when QEMU and the shared frames are here; under CI their absence is an error.
 firmware-check:

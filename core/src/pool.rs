@@ -225,6 +225,34 @@ pub fn bucket(key: u32, slots: usize) -> usize {
     }
 }
 
+/// The entry index of `key` in `slots` as [`probe`] finds it (`Found`), `None` otherwise. A lookup only: with a
+/// power-of-two table (every profile's) the probe wraps by a mask and stops at the first empty slot, the same
+/// slots in the same order as [`probe`] visits them.
+#[inline]
+pub fn find(slots: &[u16], key: u32, mut key_of: impl FnMut(usize) -> Option<u32>) -> Option<usize> {
+    let n = slots.len();
+    if !n.is_power_of_two() {
+        return match probe(slots, key, key_of) {
+            Probe::Found(i) => Some(i),
+            _ => None,
+        };
+    }
+    let mask = n - 1;
+    let mut pos = bucket(key, n);
+    for _ in 0..n {
+        let s = *slots.get(pos)?;
+        if s == 0 {
+            return None;
+        }
+        let i = s as usize - 1;
+        if key_of(i) == Some(key) {
+            return Some(i);
+        }
+        pos = (pos + 1) & mask;
+    }
+    None
+}
+
 /// Result of probing an open-addressing table for a key.
 pub enum Probe {
     /// The key is stored at this entry index.

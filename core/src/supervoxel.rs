@@ -213,10 +213,7 @@ pub fn key_corner(key: u32, resolution: f32) -> Vec3 {
 /// Index of the voxel with `key`, if occupied.
 #[inline(always)]
 pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
-    match pool::probe(slots, key, |i| voxels.get(i).map(|v| v.key)) {
-        Probe::Found(i) => Some(i),
-        _ => None,
-    }
+    pool::find(slots, key, |i| voxels.get(i).map(|v| v.key))
 }
 
 /// The 26 neighbour offsets (dx, dy, dz) in visiting order (z outermost, x innermost), each with the change it
