@@ -285,3 +285,44 @@ pub fn probe(slots: &[u16], key: u32, mut key_of: impl FnMut(usize) -> Option<u3
     }
     Probe::Full
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A table of `n` slots filled by linear probing with `keys` (entry i holds keys[i]).
+    fn table(n: usize, keys: &[u32]) -> [u16; 64] {
+        let mut slots = [0u16; 64];
+        for (i, &k) in keys.iter().enumerate() {
+            let Probe::Vacant(pos) = probe(&slots[..n], k, |j| keys.get(j).copied()) else { panic!("full") };
+            slots[pos] = i as u16 + 1;
+        }
+        slots
+    }
+
+    /// `find` answers as `probe` does, for stored and absent keys, in power-of-two tables (clusters that wrap
+    /// past the last slot included) and in a table of another size, up to a full one.
+    #[test]
+    fn find_agrees_with_probe() {
+        for (n, count) in [(64, 40), (16, 15), (16, 16), (48, 30)] {
+            // Keys that crowd a few buckets, so that runs are long and some wrap around.
+            let mut all = [0u32; 64];
+            for (i, k) in all.iter_mut().enumerate() {
+                *k = (i as u32 % 5) * 0x0010_0000 + i as u32 * 3;
+            }
+            let keys = &all[..count];
+            let slots = table(n, keys);
+            let key_of = |j: usize| keys.get(j).copied();
+            for k in keys.iter().copied().chain((0..200u32).map(|i| i * 7919 + 1)) {
+                let expected = match probe(&slots[..n], k, key_of) {
+                    Probe::Found(i) => Some(i),
+                    _ => None,
+                };
+                assert_eq!(find(&slots[..n], k, key_of), expected, "table {n}, key {k}");
+            }
+            for (i, &k) in keys.iter().enumerate() {
+                assert_eq!(find(&slots[..n], k, key_of), Some(i), "table {n}: stored key {k}");
+            }
+        }
+    }
+}
