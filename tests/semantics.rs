@@ -164,7 +164,18 @@ fn bounded_planes_cover_the_visible_floor_and_no_unobserved_cell() {
                 }
             }
             assert_eq!(occupied.len(), plane.occupied as usize);
-            assert_eq!(occupied, cells_from_points[i], "plane {i}: every occupied cell, and only those, holds support");
+            // Cells are marked per support voxel (its centroid's r/4 square): a cell may miss the few points
+            // of a voxel centred next door, or take a voxel's next to the cell its points fell in, but never
+            // more than one cell away from support.
+            let support = &cells_from_points[i];
+            let near_support = |&(a, b): &(usize, usize)| {
+                (a.saturating_sub(1)..=a + 1).any(|x| (b.saturating_sub(1)..=b + 1).any(|y| support.contains(&(x, y))))
+            };
+            assert!(occupied.iter().all(near_support), "plane {i}: an occupied cell lies off its support");
+            let held = occupied.intersection(support).count() as f64;
+            let (recall, precision) = (held / support.len() as f64, held / occupied.len() as f64);
+            println!("frame {k} plane {i}: {} cells, {} with support points; recall {recall:.3}, precision {precision:.3}", occupied.len(), support.len());
+            assert!(recall >= 0.95 && precision >= 0.95, "plane {i}: cells against support: recall {recall:.3}, precision {precision:.3}");
             let mut worst = 0.0f64;
             plane.for_each_cell_centre(g_p, |c| {
                 let world = frame.pose.apply(c.map(f64::from));

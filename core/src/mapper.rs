@@ -616,16 +616,7 @@ impl<'s> Mapper<'s> {
         }
         self.report.flat_patches = self.patches_len as u32;
         self.report.flat_patches_dropped = patches_dropped;
-        plane::fill_cells(
-            &checked.frame,
-            self.voxel_masks(checked).as_ref(),
-            self.voxels.as_slice(),
-            self.slots,
-            listed(&self.sampled, self.sampled_complete),
-            self.gaussians.as_slice(),
-            self.planes.as_mut_slice(),
-            &params,
-        );
+        plane::fill_cells(self.voxels.as_slice(), self.gaussians.as_slice(), self.planes.as_mut_slice(), &params);
         let by_cluster = params.variant.geometric_objects();
         let key = |g: &Gaussian| if by_cluster { g.cluster } else { g.instance };
         objects::group_objects(self.gaussians.as_mut_slice(), &mut self.objects, key);

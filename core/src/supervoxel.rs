@@ -328,30 +328,11 @@ pub fn for_each_voxel_point_in(
     window: points::PixelWindow,
     f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
-    for_each_wanted_voxel_point_in(frame, params, masks, voxels, slots, sampled, window, |_| true, f);
-}
-
-/// [`for_each_voxel_point_in`] where a pass that needs only some points says which (`wanted`), so that the
-/// pass over the pixels skips the others before looking up their voxel (a hash probe per point). `wanted` is a
-/// hint: from voxelisation's list (where the voxel costs nothing) `f` gets every point, so `f` must still reject
-/// the points it has no use for. Every point `f` gets comes in the unfiltered pass's order with its voxel.
-#[allow(clippy::too_many_arguments)]
-pub fn for_each_wanted_voxel_point_in(
-    frame: &Frame<'_>,
-    params: &Params,
-    masks: Option<&MaskSet<'_>>,
-    voxels: &[Voxel],
-    slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
-    window: points::PixelWindow,
-    wanted: impl Fn(&points::Point) -> bool,
-    f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
-) {
     // Two functions, each calling `f` once, so that each inlines it (the pass over the pixels is the code
     // the mcu profile runs, instruction for instruction).
     match sampled {
         Some(list) => for_each_listed_point(frame, voxels, list, window, f),
-        None => for_each_resampled_point(frame, params, masks, voxels, slots, window, wanted, f),
+        None => for_each_resampled_point(frame, params, masks, voxels, slots, window, f),
     }
 }
 
@@ -389,15 +370,12 @@ fn for_each_resampled_point(
     voxels: &[Voxel],
     slots: &[u16],
     window: points::PixelWindow,
-    wanted: impl Fn(&points::Point) -> bool,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     let r = params.voxel_resolution;
     let mut slot_cache = SlotCache::default();
     points::for_each_point_in(frame, params, window, |p| {
-        if wanted(p) {
-            f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
-        }
+        f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
     });
 }
 
@@ -772,64 +750,78 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
     let w_c = params.color_importance;
     let w_s = params.spatial_importance / (3.0 * params.seed_resolution * params.seed_resolution);
     let w_n = params.normal_importance;
+    // VCCS distance of voxel `j` (centroid, normal, colour) to supervoxel `label`'s features of the last round.
+    let distance = |supervoxels: &Bounded<'_, Supervoxel>, (c, nv, col): (Vec3, Vec3, Vec3), label: u16| {
+        let sv = supervoxels.get(label as usize)?;
+        let dc = linalg::sub(col, sv.colour);
+        let ds = linalg::sub(c, sv.centroid);
+        let dn = 1.0 - linalg::dot(nv, sv.normal);
+        Some(w_c * linalg::dot(dc, dc) + w_s * linalg::dot(ds, ds) + w_n * dn * dn)
+    };
+    let features = |voxels: &[Voxel], j: usize| {
+        let v = voxels.get(j)?;
+        let c = if LINKED { links.get(j).map_or([0.0; 3], |l| l.centroid) } else { v.centroid(r) };
+        Some((c, v.unit_normal(), v.colour()))
+    };
     for round in 2..=max_rounds.saturating_add(1) {
-        // Pass A: mark unlabelled neighbours of last round's voxels as candidates.
+        // Pass A: every unlabelled neighbour of last round's voxels is a candidate of this round, and takes the
+        // nearest (VCCS distance; ties: lower index) of the supervoxels of those voxels around it, kept in its
+        // `gaussian` field (free until stage 3). Those are all its labelled neighbours: a voxel next to one
+        // claimed earlier was claimed the round after.
         let mut candidates = 0u32;
         for i in 0..n {
             if scratch.get(i).copied() != Some(round - 1) {
                 continue;
             }
-            let Some(key) = voxels.get(i).map(|v| v.key) else { continue };
+            let Some((key, label)) = voxels.get(i).map(|v| (v.key, v.supervoxel)) else { continue };
+            let (mut around, mut k) = ([0u16; 26], 0);
             for_each_linked_neighbour::<LINKED>(voxels, slots, links, i, key, |j| {
-                if let (Some(v), Some(st)) = (voxels.get(j), scratch.get_mut(j)) {
-                    if v.supervoxel == UNLABELLED && *st == 0 {
-                        *st = CANDIDATE | round;
-                        candidates += 1;
-                    }
+                if let Some(a) = around.get_mut(k) {
+                    *a = j as u16;
+                    k += 1;
                 }
             });
+            for &j in around.get(..k).unwrap_or(&[]) {
+                let j = j as usize;
+                let (Some(&v), Some(&st)) = (voxels.get(j), scratch.get(j)) else { continue };
+                if v.supervoxel != UNLABELLED {
+                    continue;
+                }
+                let take = if st == 0 {
+                    if let Some(s) = scratch.get_mut(j) {
+                        *s = CANDIDATE | round;
+                    }
+                    candidates += 1;
+                    true
+                } else if st == CANDIDATE | round && label != v.gaussian {
+                    let f = features(voxels, j);
+                    let d = f.and_then(|f| Some((distance(supervoxels, f, label)?, distance(supervoxels, f, v.gaussian)?)));
+                    d.is_some_and(|(d2, bd)| d2 < bd || (d2 == bd && label < v.gaussian))
+                } else {
+                    false
+                };
+                if let (true, Some(v)) = (take, voxels.get_mut(j)) {
+                    v.gaussian = label;
+                }
+            }
         }
         if candidates == 0 {
             break;
         }
         stats.rounds = round as u32 - 1;
-        // Pass B: each candidate joins the nearest (VCCS distance) supervoxel among its labelled neighbours.
+        // Pass B: each candidate joins the supervoxel pass A chose, in voxel order.
         for i in 0..n {
             if scratch.get(i).copied() != Some(CANDIDATE | round) {
                 continue;
             }
             let Some(v) = voxels.get(i).copied() else { continue };
-            let c = if LINKED { links.get(i).map_or([0.0; 3], |l| l.centroid) } else { v.centroid(r) };
-            let (nv, col) = (v.unit_normal(), v.colour());
-            let mut best: Option<(f32, u16)> = None;
-            for_each_linked_neighbour::<LINKED>(voxels, slots, links, i, v.key, |j| {
-                let (Some(nb), Some(&st)) = (voxels.get(j), scratch.get(j)) else { return };
-                if !is_assigned(nb.supervoxel) || st >= round {
-                    return;
-                }
-                let Some(sv) = supervoxels.get(nb.supervoxel as usize) else { return };
-                let dc = linalg::sub(col, sv.colour);
-                let ds = linalg::sub(c, sv.centroid);
-                let dn = 1.0 - linalg::dot(nv, sv.normal);
-                let d2 = w_c * linalg::dot(dc, dc) + w_s * linalg::dot(ds, ds) + w_n * dn * dn;
-                let better = match best {
-                    None => true,
-                    Some((bd, bl)) => d2 < bd || (d2 == bd && nb.supervoxel < bl),
-                };
-                if better {
-                    best = Some((d2, nb.supervoxel));
-                }
-            });
-            if let Some((_, label)) = best {
-                if let Some(sv) = supervoxels.get_mut(label as usize) {
-                    sv.add(&v, r);
-                }
-                if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
-                    vox.supervoxel = label;
-                    *st = round;
-                }
-            } else if let Some(st) = scratch.get_mut(i) {
-                *st = 0;
+            let label = v.gaussian;
+            if let Some(sv) = supervoxels.get_mut(label as usize) {
+                sv.add(&v, r);
+            }
+            if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
+                vox.supervoxel = label;
+                *st = round;
             }
         }
         for sv in supervoxels.as_mut_slice() {
