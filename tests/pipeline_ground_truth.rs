@@ -237,12 +237,10 @@ fn a_full_voxel_pool_maps_the_frame_with_coarser_voxels() {
         let share = |own: &dyn Fn(&m2smap_core::supervoxel::Voxel) -> bool| {
             mapper.voxels().iter().filter(|v| own(v)).count() as f32 / mapper.voxels().len() as f32
         };
-        let keyed =
-            |edge: f32| share(&|v| m2smap_core::supervoxel::voxel_key(v.centroid(edge), edge, 0) == Some(v.key));
+        let keyed = |edge: f32| share(&|v| m2smap_core::supervoxel::voxel_key(v.centroid(), edge, 0) == Some(v.key));
         assert!(keyed(r.voxel_resolution_m) > 0.99 && keyed(params.voxel_resolution) < 0.5);
         // `Mapper::voxel_at` looks the voxels up with the frame's edge.
-        let looked_up =
-            share(&|v| mapper.voxel_at(v.centroid(r.voxel_resolution_m), 0).is_some_and(|found| found.key == v.key));
+        let looked_up = share(&|v| mapper.voxel_at(v.centroid(), 0).is_some_and(|found| found.key == v.key));
         assert!(looked_up > 0.99, "{looked_up}");
         assert_eq!(mapper.params().voxel_resolution, params.voxel_resolution, "the configured edge is back");
     }
@@ -271,7 +269,7 @@ fn a_full_voxel_pool_drops_the_farthest_points() {
         // The full range's refused inserts are reported; nothing was refused over the range kept.
         assert!(r.pool(PoolId::Voxels).overflow_events > 0 && r.voxels <= 2048);
         assert_eq!(r.points, full.points, "the in-range points of the configured range");
-        let far = mapper.voxels().iter().map(|v| v.centroid(r.voxel_resolution_m)[2]).fold(0.0f32, f32::max);
+        let far = mapper.voxels().iter().map(|v| v.centroid()[2]).fold(0.0f32, f32::max);
         assert!(far <= range, "a voxel at {far} m beyond the range {range} m");
         // Every later stage saw the same range: each point is mapped, an outlier, or dropped (beyond it).
         let mapped: u32 = mapper.gaussians().iter().map(|g| g.count).sum();

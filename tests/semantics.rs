@@ -174,8 +174,15 @@ fn bounded_planes_cover_the_visible_floor_and_no_unobserved_cell() {
             assert!(occupied.iter().all(near_support), "plane {i}: an occupied cell lies off its support");
             let held = occupied.intersection(support).count() as f64;
             let (recall, precision) = (held / support.len() as f64, held / occupied.len() as f64);
-            println!("frame {k} plane {i}: {} cells, {} with support points; recall {recall:.3}, precision {precision:.3}", occupied.len(), support.len());
-            assert!(recall >= 0.95 && precision >= 0.95, "plane {i}: cells against support: recall {recall:.3}, precision {precision:.3}");
+            println!(
+                "frame {k} plane {i}: {} cells, {} with support points; recall {recall:.3}, precision {precision:.3}",
+                occupied.len(),
+                support.len()
+            );
+            assert!(
+                recall >= 0.95 && precision >= 0.95,
+                "plane {i}: cells against support: recall {recall:.3}, precision {precision:.3}"
+            );
             let mut worst = 0.0f64;
             plane.for_each_cell_centre(g_p, |c| {
                 let world = frame.pose.apply(c.map(f64::from));

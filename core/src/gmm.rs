@@ -31,7 +31,7 @@ use crate::linalg::{self, Moments, Sym3, Vec3};
 use crate::masks::MaskSet;
 use crate::params::Params;
 use crate::pool::Bounded;
-use crate::supervoxel::{self, SampledPoint, Supervoxel, Voxel, VoxelLinks, DROPPED};
+use crate::supervoxel::{self, SampledPoint, Supervoxel, Voxel, DROPPED};
 
 /// One refined Gaussian component of C_g.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
@@ -134,35 +134,6 @@ pub struct GmmPools<'a, 'b> {
     pub stack: &'a mut Bounded<'b, SplitTask>,
     /// Output Gaussians.
     pub gaussians: &'a mut Bounded<'b, Gaussian>,
-    /// The frame's voxel links, when complete ([`supervoxel::VoxelLinks`]): the centroids the splits use.
-    pub links: Option<&'a [VoxelLinks]>,
-}
-
-/// Where the split stage takes a voxel's centroid from: its sums, or the frame's links (the same bits; each
-/// compiled on its own, so the mcu profile's code is the sums' alone).
-trait Centroids {
-    /// Centroid of voxel `i` (`v`), metres.
-    fn of(&self, i: usize, v: &Voxel) -> Vec3;
-}
-
-/// Centroids from the voxel sums at this resolution (metres).
-struct FromSums(f32);
-
-impl Centroids for FromSums {
-    #[inline(always)]
-    fn of(&self, _: usize, v: &Voxel) -> Vec3 {
-        v.centroid(self.0)
-    }
-}
-
-/// Centroids from the links (those of the sums for a voxel without one).
-struct Linked<'a>(&'a [VoxelLinks], f32);
-
-impl Centroids for Linked<'_> {
-    #[inline(always)]
-    fn of(&self, i: usize, v: &Voxel) -> Vec3 {
-        self.0.get(i).map_or_else(|| v.centroid(self.1), |l| l.centroid)
-    }
 }
 
 /// Refines every supervoxel into Gaussians and computes their exact point statistics.
@@ -172,8 +143,7 @@ pub fn refine(
     voxel_masks: Option<&MaskSet<'_>>,
     params: &Params,
 ) -> GmmStats {
-    let GmmPools { voxels, slots, sampled, order, supervoxels, stack, gaussians, links } = pools;
-    let r = params.voxel_resolution;
+    let GmmPools { voxels, slots, sampled, order, supervoxels, stack, gaussians } = pools;
     let mut stats = GmmStats::default();
     gaussians.clear();
     stack.clear();
@@ -198,10 +168,7 @@ pub fn refine(
         let _ = stack.push(SplitTask { start: sv.first, end, depth: 0, supervoxel: s as u16 });
         // Depth-first, one supervoxel at a time, so the Gaussian order follows the supervoxel order.
         while let Some(task) = stack.pop() {
-            match links {
-                Some(l) => process(task, voxels, order, stack, gaussians, params, &mut stats, &Linked(l, r)),
-                None => process(task, voxels, order, stack, gaussians, params, &mut stats, &FromSums(r)),
-            }
+            process(task, voxels, order, stack, gaussians, params, &mut stats);
         }
     }
 
@@ -211,13 +178,8 @@ pub fn refine(
 
 /// Sets a Gaussian's voxel-level statistics from the voxels in `range`: point count, exact mean and mean colour
 /// (from the voxel sums); resets the point-level ones that [`point_statistics`] accumulates.
-pub fn voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel], r: f32) {
-    set_voxel_statistics(g, range, voxels, &FromSums(r));
-}
-
-/// [`voxel_statistics`] with the centroids from `c`.
-fn set_voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel], c: &impl Centroids) {
-    let (m, points) = range_moments(range, voxels, c);
+pub fn voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel]) {
+    let (m, points) = range_moments(range, voxels);
     let mut colour = [0u64; 3];
     for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
         for (c, s) in colour.iter_mut().zip(v.colour_sums()) {
@@ -302,7 +264,7 @@ pub fn recompute_statistics(
             end += 1;
         }
         if let (Some(gauss), Some(range)) = (gaussians.get_mut(g as usize), order.get(start..end)) {
-            voxel_statistics(gauss, range, voxels, params.voxel_resolution);
+            voxel_statistics(gauss, range, voxels);
         }
         start = end;
     }
@@ -310,12 +272,12 @@ pub fn recompute_statistics(
 }
 
 /// Weighted voxel-centroid moments of the range, and its point count.
-fn range_moments(range: &[u16], voxels: &[Voxel], c: &impl Centroids) -> (Moments, u32) {
-    let first = range.first().and_then(|&i| voxels.get(i as usize).map(|v| c.of(i as usize, v))).unwrap_or([0.0; 3]);
+fn range_moments(range: &[u16], voxels: &[Voxel]) -> (Moments, u32) {
+    let first = range.first().and_then(|&i| voxels.get(i as usize).map(Voxel::centroid)).unwrap_or([0.0; 3]);
     let mut m = Moments::about(first);
     let mut points = 0u32;
-    for (i, v) in range.iter().filter_map(|&i| voxels.get(i as usize).map(|v| (i as usize, v))) {
-        m.add(c.of(i, v), v.count as f32);
+    for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+        m.add(v.centroid(), v.count as f32);
         points += v.count as u32;
     }
     (m, points)
@@ -330,10 +292,9 @@ fn process(
     gaussians: &mut Bounded<'_, Gaussian>,
     params: &Params,
     stats: &mut GmmStats,
-    c: &impl Centroids,
 ) {
     let Some(range) = order.get_mut(task.start as usize..task.end as usize) else { return };
-    let (m, points) = range_moments(range, voxels, c);
+    let (m, points) = range_moments(range, voxels);
     let eig = linalg::sym_eigen(m.covariance());
     let sigma = eig.sigmas();
     let (mean_normal, spread) = normal_spread(range, voxels);
@@ -353,12 +314,12 @@ fn process(
             ]
         };
         let candidates = [
-            bent.then(|| normal_seeds(range, voxels, mean_normal, c)),
+            bent.then(|| normal_seeds(range, voxels, mean_normal)),
             Some(along(eig.vectors[0], sigma[0])),
             (sigma[2] > max_thickness).then(|| along(eig.vectors[2], sigma[2])),
         ];
         let split =
-            candidates.into_iter().flatten().find_map(|seeds| two_means_partition(range, voxels, seeds, params, c));
+            candidates.into_iter().flatten().find_map(|seeds| two_means_partition(range, voxels, seeds, params));
         if let Some(mid) = split {
             let mid = task.start + mid as u16;
             let right = SplitTask { start: mid, end: task.end, depth: task.depth + 1, supervoxel: task.supervoxel };
@@ -376,7 +337,7 @@ fn process(
     // Leaf: one Gaussian.
     let Some(range) = order.get(task.start as usize..task.end as usize) else { return };
     let mut g = Gaussian::zeroed();
-    set_voxel_statistics(&mut g, range, voxels, c);
+    voxel_statistics(&mut g, range, voxels);
     g.supervoxel = task.supervoxel;
     let label = match gaussians.push(g) {
         Some(id) => id as u16,
@@ -401,8 +362,8 @@ struct Feature {
 
 impl Feature {
     #[inline(always)]
-    fn of(i: usize, v: &Voxel, c: &impl Centroids) -> Self {
-        Feature { p: c.of(i, v), n: v.unit_normal() }
+    fn of(v: &Voxel) -> Self {
+        Feature { p: v.centroid(), n: v.unit_normal() }
     }
 
     fn distance2(&self, other: &Feature, normal_weight: f32) -> f32 {
@@ -428,13 +389,13 @@ fn normal_spread(range: &[u16], voxels: &[Voxel]) -> (Vec3, f32) {
 }
 
 /// Seeds for a bent cluster: the voxel whose normal is farthest from the mean, then the one farthest from it.
-fn normal_seeds(range: &[u16], voxels: &[Voxel], mean_normal: Vec3, c: &impl Centroids) -> [Feature; 2] {
+fn normal_seeds(range: &[u16], voxels: &[Voxel], mean_normal: Vec3) -> [Feature; 2] {
     let farthest_from = |n: Vec3| {
         let mut best: Option<(f32, Feature)> = None;
-        for (i, v) in range.iter().filter_map(|&i| voxels.get(i as usize).map(|v| (i as usize, v))) {
+        for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
             let d = linalg::dot(v.unit_normal(), n);
             if best.is_none_or(|(bd, _)| d < bd) {
-                best = Some((d, Feature::of(i, v, c)));
+                best = Some((d, Feature::of(v)));
             }
         }
         best.map(|(_, f)| f)
@@ -446,21 +407,15 @@ fn normal_seeds(range: &[u16], voxels: &[Voxel], mean_normal: Vec3, c: &impl Cen
 
 /// Splits `range` in place into two groups by 2-means from `seeds`; returns the size of the first group, or
 /// `None` when either group would have fewer than `gmm_min_points` points.
-fn two_means_partition(
-    range: &mut [u16],
-    voxels: &[Voxel],
-    seeds: [Feature; 2],
-    params: &Params,
-    c: &impl Centroids,
-) -> Option<usize> {
+fn two_means_partition(range: &mut [u16], voxels: &[Voxel], seeds: [Feature; 2], params: &Params) -> Option<usize> {
     let w = params.gmm_normal_weight;
     let mut centres = seeds;
     let nearer_first = |f: &Feature, c: &[Feature; 2]| f.distance2(&c[0], w) <= f.distance2(&c[1], w);
     for _ in 0..params.gmm_kmeans_iters {
         let mut acc = [Moments::about(centres[0].p), Moments::about(centres[1].p)];
         let mut normals = [[0.0f32; 3]; 2];
-        for (i, v) in range.iter().filter_map(|&i| voxels.get(i as usize).map(|v| (i as usize, v))) {
-            let f = Feature::of(i, v, c);
+        for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
+            let f = Feature::of(v);
             let k = if nearer_first(&f, &centres) { 0 } else { 1 };
             if let (Some(a), Some(n)) = (acc.get_mut(k), normals.get_mut(k)) {
                 a.add(f.p, v.count as f32);
@@ -486,7 +441,7 @@ fn two_means_partition(
     while lo < hi {
         let i = range.get(lo).copied()? as usize;
         let v = voxels.get(i)?;
-        if nearer_first(&Feature::of(i, v, c), &centres) {
+        if nearer_first(&Feature::of(v), &centres) {
             first_points += v.count as u32;
             lo += 1;
         } else {

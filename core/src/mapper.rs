@@ -422,12 +422,7 @@ impl<'s> Mapper<'s> {
         self.masks_within_boxes = voxel_masks.is_some_and(|m| matches!(m.pixels, crate::masks::MaskPixels::IdImage(_)))
             && !stats.mask_pixels_outside_boxes;
         self.report.voxel_range_m = self.params.depth_max;
-        self.linked = supervoxel::compute_normals(
-            self.voxels.as_mut_slice(),
-            self.slots,
-            self.links,
-            self.params.voxel_resolution,
-        );
+        self.linked = supervoxel::compute_normals(self.voxels.as_mut_slice(), self.slots, self.links);
         self.report.points = in_range;
         self.report.dropped_points += stats.dropped_points;
         self.report.voxels = self.voxels.len() as u32;
@@ -460,7 +455,6 @@ impl<'s> Mapper<'s> {
     /// Stage 3: IH-GMM refinement (third step of [`Mapper::process`]).
     pub fn stage_gaussians(&mut self, checked: &CheckedFrame<'_>) {
         let voxel_masks = self.voxel_masks(checked);
-        let n = self.voxels.len();
         let stats = gmm::refine(
             GmmPools {
                 voxels: self.voxels.as_mut_slice(),
@@ -470,7 +464,6 @@ impl<'s> Mapper<'s> {
                 supervoxels: self.supervoxels.as_mut_slice(),
                 stack: &mut self.stack,
                 gaussians: &mut self.gaussians,
-                links: self.links.get(..n).filter(|_| self.linked),
             },
             &checked.frame,
             voxel_masks.as_ref(),

@@ -221,7 +221,7 @@ pub fn fill_cells(voxels: &[Voxel], gaussians: &[Gaussian], planes: &mut [Plane]
             continue;
         }
         let Some(plane) = planes.get_mut(g.owner as usize) else { continue };
-        let c = v.centroid(r);
+        let c = v.centroid();
         // A voxel off the plane (an object's foot, a chair leg in the floor's Gaussian) would claim the plane's
         // surface where the camera saw something else.
         if !plane.is_on_plane(c, params) {
@@ -277,7 +277,7 @@ mod tests {
     fn plane_voxels_mark_the_cells_under_their_centroid() {
         extern crate std;
         use crate::gmm::ROLE_RESIDUAL;
-        use crate::supervoxel::{key_corner, voxel_key, UNLABELLED};
+        use crate::supervoxel::{voxel_key, UNLABELLED};
         use std::collections::BTreeSet;
         let params = Params::default();
         let r = params.voxel_resolution;
@@ -288,16 +288,14 @@ mod tests {
         let voxel = |s: f32, t: f32, off: f32, count: u16, gaussian: u16| {
             let p = [s, 1.0 - off, 3.0 + t];
             let key = voxel_key(p, r, 0).expect("in the key range");
-            let c = key_corner(key, r);
-            let k = f32::from(count);
-            Voxel { key, count, gaussian, sum: [(p[0] - c[0]) * k, (p[1] - c[1]) * k, (p[2] - c[2]) * k], ..Voxel::zeroed() }
+            Voxel { key, count, gaussian, mean: p, ..Voxel::zeroed() }
         };
         let voxels = [
-            voxel(0.012, 0.012, 0.0, 5, 0),  // in cell (40, 40) with its whole square
-            voxel(0.102, 0.011, 0.0, 3, 0),  // 2 mm past the edge between cells 41 and 42 along e1: both
-            voxel(0.30, 0.30, 0.08, 7, 0),   // 8 cm above the floor (an object's foot): no cell
-            voxel(2.5, 0.0, 0.0, 4, 0),      // beyond the ±2 m grid: clipped
-            voxel(-0.30, 0.0, 0.0, 6, 1),    // a residual Gaussian's: no cell
+            voxel(0.012, 0.012, 0.0, 5, 0),        // in cell (40, 40) with its whole square
+            voxel(0.102, 0.011, 0.0, 3, 0),        // 2 mm past the edge between cells 41 and 42 along e1: both
+            voxel(0.30, 0.30, 0.08, 7, 0),         // 8 cm above the floor (an object's foot): no cell
+            voxel(2.5, 0.0, 0.0, 4, 0),            // beyond the ±2 m grid: clipped
+            voxel(-0.30, 0.0, 0.0, 6, 1),          // a residual Gaussian's: no cell
             voxel(-0.50, 0.0, 0.0, 6, UNLABELLED), // no Gaussian: no cell
         ];
         let mut gaussians = [Gaussian::zeroed(), Gaussian::zeroed()];

@@ -40,7 +40,7 @@ pub fn is_assigned(label: u16) -> bool {
     label < DROPPED
 }
 
-/// One occupied voxel: the sums of the sampled points that fall into it.
+/// One occupied voxel: the count, mean, colour sums and normal of the sampled points that fall into it.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 #[repr(C)]
 pub struct Voxel {
@@ -54,8 +54,10 @@ pub struct Voxel {
     pub gaussian: u16,
     /// Unit normal × 32767, facing the camera.
     pub normal: [i16; 3],
-    /// Σ (p − corner) over its points, metres.
-    pub sum: Vec3,
+    /// Mean of its points, metres (camera frame): [`voxelize`] sums p − corner here while it adds points and
+    /// turns the sum into the mean once every point is in, so that no later stage divides again. Read it with
+    /// [`Voxel::centroid`].
+    pub mean: Vec3,
     /// Σ R, Σ G and Σ B over its points, 21 bits each, packed little-endian into a 64-bit word held as two
     /// `u32`s (R in bits 0–20, G in 21–41, B in 42–62); read them with [`Voxel::colour_sums`]. A voxel takes at
     /// most [`MAX_VOXEL_POINTS`] points, so no sum overflows its field (4 bytes less per voxel than three
@@ -71,10 +73,10 @@ pub const MAX_VOXEL_POINTS: u16 = 8223;
 const COLOUR_SUM_BITS: u32 = 21;
 
 impl Voxel {
-    /// Mean of its points, metres.
-    pub fn centroid(&self, resolution: f32) -> Vec3 {
-        let corner = key_corner(self.key, resolution);
-        linalg::add(corner, linalg::scale(self.sum, 1.0 / (self.count.max(1)) as f32))
+    /// Mean of its points, metres (after [`voxelize`]).
+    #[inline]
+    pub fn centroid(&self) -> Vec3 {
+        self.mean
     }
 
     /// Mean colour, each channel in [0, 1].
@@ -131,19 +133,19 @@ pub struct Supervoxel {
 }
 
 impl Supervoxel {
-    fn start(seed: u16, v: &Voxel, resolution: f32) -> Self {
+    fn start(seed: u16, v: &Voxel) -> Self {
         let mut sv = Supervoxel::zeroed();
         sv.seed = seed;
-        sv.reference = v.centroid(resolution);
-        sv.add(v, resolution);
+        sv.reference = v.centroid();
+        sv.add(v);
         sv.finish_round();
         sv
     }
 
-    fn add(&mut self, v: &Voxel, resolution: f32) {
+    fn add(&mut self, v: &Voxel) {
         self.voxels = self.voxels.saturating_add(1);
         self.points += v.count as u32;
-        self.acc_centroid = linalg::add(self.acc_centroid, linalg::sub(v.centroid(resolution), self.reference));
+        self.acc_centroid = linalg::add(self.acc_centroid, linalg::sub(v.centroid(), self.reference));
         self.acc_normal = linalg::add(self.acc_normal, v.unit_normal());
         self.acc_colour = linalg::add(self.acc_colour, v.colour());
     }
@@ -440,6 +442,11 @@ fn add_points<const LIST: bool>(
         }
     });
     stats.mask_pixels_outside_boxes = slot_cache.saw_pixel_outside_box();
+    // Every point is in: each voxel's sum of offsets becomes its mean.
+    for v in voxels.as_mut_slice() {
+        let corner = key_corner(v.key, r);
+        v.mean = linalg::add(corner, linalg::scale(v.mean, 1.0 / (v.count.max(1)) as f32));
+    }
     stats
 }
 
@@ -495,20 +502,17 @@ fn add_point(
     }
     let corner = key_corner(key, r);
     v.count += 1;
-    v.sum = linalg::add(v.sum, linalg::sub(p.xyz, corner));
+    v.mean = linalg::add(v.mean, linalg::sub(p.xyz, corner));
     v.add_colour(p.rgb);
     index
 }
 
-/// A voxel's centroid and its occupied 26-neighbours, found once per frame by [`compute_normals`] where the
-/// profile has room (the `host` one; 68 bytes per voxel), so that neither the normals nor supervoxel growth look
-/// neighbours up in the hash or centroids up from the sums again ([`for_each_neighbour`] and
-/// [`Voxel::centroid`] give the same indices, order and bits).
+/// A voxel's occupied 26-neighbours, found once per frame by [`compute_normals`] where the profile has room (the
+/// `host` one; 56 bytes per voxel), so that neither the normals nor supervoxel growth look neighbours up in the
+/// hash again ([`for_each_neighbour`] gives the same indices in the same order).
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 #[repr(C)]
 pub struct VoxelLinks {
-    /// [`Voxel::centroid`], metres.
-    pub centroid: Vec3,
     /// Index of the occupied neighbour in each of the 26 directions of [`for_each_neighbour`]'s order (where
     /// the direction's bit of `occupied` is set).
     pub neighbours: [u16; 26],
@@ -564,12 +568,12 @@ pub fn for_each_linked_neighbour<const LINKED: bool>(
     }
 }
 
-/// Fills `links` (at least one per voxel) with each voxel's centroid and neighbours. Direction d of the 26
+/// Fills `links` (at least one per voxel) with each voxel's neighbours. Direction d of the 26
 /// offsets and direction 25 − d are opposite, so each pair of neighbours is looked up once, from the voxel that
 /// sees the other in one of the 13 directions d ≥ 13.
-fn link_voxels(voxels: &[Voxel], slots: &[u16], links: &mut [VoxelLinks], resolution: f32) {
-    for (l, v) in links.iter_mut().zip(voxels.iter()) {
-        *l = VoxelLinks { centroid: v.centroid(resolution), neighbours: [NO_VOXEL; 26], occupied: 0 };
+fn link_voxels(voxels: &[Voxel], slots: &[u16], links: &mut [VoxelLinks]) {
+    for l in links.iter_mut().take(voxels.len()) {
+        *l = VoxelLinks { neighbours: [NO_VOXEL; 26], occupied: 0 };
     }
     for (i, v) in voxels.iter().enumerate() {
         for d in 13..26 {
@@ -587,31 +591,31 @@ fn link_voxels(voxels: &[Voxel], slots: &[u16], links: &mut [VoxelLinks], resolu
 }
 
 /// Computes every voxel's normal from its 27-neighbourhood of centroids. When `links` holds an entry per
-/// voxel, it first records each voxel's centroid and neighbours there ([`VoxelLinks`]) and returns true.
-pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], links: &mut [VoxelLinks], resolution: f32) -> bool {
+/// voxel, it first records each voxel's neighbours there ([`VoxelLinks`]) and returns true.
+pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], links: &mut [VoxelLinks]) -> bool {
     if links.len() < voxels.len() {
         for i in 0..voxels.len() {
             let Some(&v) = voxels.get(i) else { continue };
-            let c = v.centroid(resolution);
+            let c = v.centroid();
             let mut m = Moments::about(c);
             m.add(c, 1.0);
             for_each_neighbour(voxels, slots, v.key, |j| {
                 if let Some(n) = voxels.get(j) {
-                    m.add(n.centroid(resolution), 1.0);
+                    m.add(n.centroid(), 1.0);
                 }
             });
             set_normal(voxels, i, c, &m);
         }
         return false;
     }
-    link_voxels(voxels, slots, links, resolution);
+    link_voxels(voxels, slots, links);
     for (i, own) in links.iter().enumerate().take(voxels.len()) {
-        let c = own.centroid;
+        let Some(c) = voxels.get(i).map(Voxel::centroid) else { continue };
         let mut m = Moments::about(c);
         m.add(c, 1.0);
         own.for_each(|j| {
-            if let Some(n) = links.get(j) {
-                m.add(n.centroid, 1.0);
+            if let Some(n) = voxels.get(j) {
+                m.add(n.centroid(), 1.0);
             }
         });
         set_normal(voxels, i, c, &m);
@@ -702,7 +706,6 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
 /// [`build_supervoxels`]; `LINKED`: neighbours and centroids from `links`.
 fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks], params: &Params) -> SupervoxelStats {
     let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels, links: _ } = pools;
-    let r = params.voxel_resolution;
     let mut stats = SupervoxelStats::default();
     supervoxels.clear();
     for v in voxels.iter_mut() {
@@ -729,7 +732,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             continue;
         }
         let Some(v) = voxels.get(i).copied() else { continue };
-        match supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
+        match supervoxels.push(Supervoxel::start(i as u16, &v)) {
             Some(id) => {
                 if let Some(vox) = voxels.get_mut(i) {
                     vox.supervoxel = id as u16;
@@ -760,7 +763,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
     };
     let features = |voxels: &[Voxel], j: usize| {
         let v = voxels.get(j)?;
-        let c = if LINKED { links.get(j).map_or([0.0; 3], |l| l.centroid) } else { v.centroid(r) };
+        let c = v.centroid();
         Some((c, v.unit_normal(), v.colour()))
     };
     for round in 2..=max_rounds.saturating_add(1) {
@@ -795,7 +798,8 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
                     true
                 } else if st == CANDIDATE | round && label != v.gaussian {
                     let f = features(voxels, j);
-                    let d = f.and_then(|f| Some((distance(supervoxels, f, label)?, distance(supervoxels, f, v.gaussian)?)));
+                    let d =
+                        f.and_then(|f| Some((distance(supervoxels, f, label)?, distance(supervoxels, f, v.gaussian)?)));
                     d.is_some_and(|(d2, bd)| d2 < bd || (d2 == bd && label < v.gaussian))
                 } else {
                     false
@@ -817,7 +821,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             let Some(v) = voxels.get(i).copied() else { continue };
             let label = v.gaussian;
             if let Some(sv) = supervoxels.get_mut(label as usize) {
-                sv.add(&v, r);
+                sv.add(&v);
             }
             if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
                 vox.supervoxel = label;
@@ -878,7 +882,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             stats.outlier_points += v.count as u32;
             OUTLIER
         } else if root == i {
-            match supervoxels.push(Supervoxel::start(i as u16, &v, r)) {
+            match supervoxels.push(Supervoxel::start(i as u16, &v)) {
                 Some(id) => {
                     stats.orphan_supervoxels += 1;
                     id as u16
@@ -888,7 +892,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         } else {
             let label = rv.supervoxel;
             if let Some(sv) = supervoxels.get_mut(label as usize) {
-                sv.add(&v, r);
+                sv.add(&v);
             }
             label
         };
@@ -911,10 +915,10 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
 /// Fills the seed-cell table: voxel count and nearest-to-centre voxel per `seed_resolution` cube.
 fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params: &Params) {
     seeds.clear();
-    let (r, rs) = (params.voxel_resolution, params.seed_resolution);
+    let rs = params.seed_resolution;
     let mut last = 0;
     for (i, v) in voxels.iter().enumerate() {
-        let c = v.centroid(r);
+        let c = v.centroid();
         let Some(key) = voxel_key(c, rs, key_slot(v.key)) else { continue };
         let centre = linalg::add(key_corner(key, rs), [0.5 * rs; 3]);
         let d = linalg::sub(c, centre);
@@ -989,21 +993,20 @@ mod tests {
                     panic!("hash")
                 };
                 voxels[n] =
-                    Voxel { key, count: 1 + (k % 7) as u16, sum: [0.001 * k as f32, 0.002, 0.003], ..Voxel::zeroed() };
+                    Voxel { key, count: 1 + (k % 7) as u16, mean: [0.001 * k as f32, 0.002, 0.003], ..Voxel::zeroed() };
                 slots[pos] = (n + 1) as u16;
                 n += 1;
             }
         }
         let voxels = &voxels[..n];
-        let mut links = [VoxelLinks { centroid: [0.0; 3], neighbours: [0; 26], occupied: 0 }; 600];
-        link_voxels(voxels, &slots, &mut links, 0.03);
+        let mut links = [VoxelLinks { neighbours: [0; 26], occupied: 0 }; 600];
+        link_voxels(voxels, &slots, &mut links);
         let mut total = 0;
         for (i, v) in voxels.iter().enumerate() {
             let (mut by_hash, mut by_links) = (heapless::Vec::<usize, 26>::new(), heapless::Vec::<usize, 26>::new());
             for_each_neighbour(voxels, &slots, v.key, |j| by_hash.push(j).unwrap());
             for_each_linked_neighbour::<true>(voxels, &slots, &links[..n], i, v.key, |j| by_links.push(j).unwrap());
             assert_eq!(by_links, by_hash, "voxel {i}");
-            assert_eq!(links[i].centroid.map(f32::to_bits), v.centroid(0.03).map(f32::to_bits));
             total += by_hash.len();
         }
         assert!(total > 2000, "{total} neighbour pairs");
