@@ -213,8 +213,13 @@ pub fn fill_cells(voxels: &[Voxel], gaussians: &[Gaussian], planes: &mut [Plane]
     if planes.is_empty() {
         return;
     }
-    let r = params.voxel_resolution;
-    let h = r / 8.0;
+    // Half the square's side, in cells; a coordinate in cells from the grid's corner to its cell index.
+    let h = params.voxel_resolution / 8.0 / params.g_p;
+    let half = (PLANE_GRID / 2) as f32;
+    let cell = |x: f32| {
+        let i = linalg::floor_i32(x);
+        (0..PLANE_GRID as i32).contains(&i).then_some(i as usize)
+    };
     for v in voxels {
         let Some(g) = gaussians.get(v.gaussian as usize) else { continue };
         if g.role != ROLE_PLANE {
@@ -227,13 +232,16 @@ pub fn fill_cells(voxels: &[Voxel], gaussians: &[Gaussian], planes: &mut [Plane]
         if !plane.is_on_plane(c, params) {
             continue;
         }
-        if plane.cell_of(c, params.g_p).is_none() {
+        // The centroid's tangent-plane coordinates in cells from the grid's corner (equation 9); the square's
+        // corners are these ± h.
+        let d = linalg::sub(c, plane.centroid);
+        let (s, t) = (linalg::dot(d, plane.e1) / params.g_p + half, linalg::dot(d, plane.e2) / params.g_p + half);
+        if cell(s).is_none() || cell(t).is_none() {
             plane.clipped_points += u32::from(v.count);
             continue;
         }
-        for (s1, s2) in [(-h, -h), (h, -h), (-h, h), (h, h)] {
-            let corner = linalg::add(c, linalg::add(linalg::scale(plane.e1, s1), linalg::scale(plane.e2, s2)));
-            if let Some((a, b)) = plane.cell_of(corner, params.g_p) {
+        for (a, b) in [(s - h, t - h), (s + h, t - h), (s - h, t + h), (s + h, t + h)] {
+            if let (Some(a), Some(b)) = (cell(a), cell(b)) {
                 plane.occupy(a, b);
             }
         }
