@@ -20,8 +20,9 @@
 //! have at least `gmm_min_points` points; otherwise the cluster is a leaf. Leaves are the Gaussians.
 //!
 //! Split decisions use voxel centroids (within-voxel spread is averaged out, so sensor noise does not force
-//! splits). The stored Gaussian is exact at point level: the mean and count come from the voxel sums, and the
-//! covariance (denominator N − 1, as the paper) and support box from a second pass over the sampled points.
+//! splits). The stored Gaussian is exact at point level: the mean and count come from the voxels' counts and
+//! means, and the covariance (denominator N − 1, as the paper) and support box from a second pass over the
+//! sampled points.
 //! The work list is an explicit stack of voxel-order ranges; there is no recursion.
 
 use bytemuck::Zeroable;
@@ -177,7 +178,7 @@ pub fn refine(
 }
 
 /// Sets a Gaussian's voxel-level statistics from the voxels in `range`: point count, exact mean and mean colour
-/// (from the voxel sums); resets the point-level ones that [`point_statistics`] accumulates.
+/// (from the voxels' counts, means and colour sums); resets the point-level ones that [`point_statistics`] accumulates.
 pub fn voxel_statistics(g: &mut Gaussian, range: &[u16], voxels: &[Voxel]) {
     let (m, points) = range_moments(range, voxels);
     let mut colour = [0u64; 3];

@@ -6,8 +6,8 @@
 //! eigenvalue ratio, colour, source cluster, and the occupied cells of a `g_p` grid in its tangent plane, as a
 //! bitmap of [`PLANE_GRID`]² cells centred on the centroid. One representative point per occupied cell
 //! (its centre, equation 10) reconstructs it; cells come only from support voxels whose centroid lies on the
-//! plane (within the depth tolerance at its depth), so the plane is bounded by what was observed of it and never claims the
-//! footprint of an object standing on it.
+//! plane (within the depth tolerance at its depth), so the plane is bounded by what was observed of it and never
+//! claims the footprint of an object standing on it.
 
 use bytemuck::Zeroable;
 

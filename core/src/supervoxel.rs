@@ -1,7 +1,8 @@
 //! Stage 2: 3 cm voxels and VCCS-style supervoxels (paper §III-A; Papon et al., CVPR 2013).
 //!
-//! 1. **Voxels.** Every sampled point adds to the sums of its `voxel_resolution` cube (count, Σ offset, Σ RGB);
-//!    the hash from cube key to voxel is open addressing over a fixed slot array. Voxel indices follow the
+//! 1. **Voxels.** Every sampled point adds to the sums of its `voxel_resolution` cube (count, Σ offset — turned
+//!    into the mean once every point is in — and Σ RGB); the hash from cube key to voxel is open addressing over
+//!    a fixed slot array. Voxel indices follow the
 //!    pixel scan, so they are deterministic.
 //! 2. **Normals.** A voxel's normal is the least-variance direction of its own and its 26 neighbours'
 //!    centroids, turned towards the camera.
