@@ -145,12 +145,19 @@ impl Plane {
         p
     }
 
+    /// A point's coordinates along e1 and e2 from the centroid, in cells of size `g_p` (equation 9 before
+    /// its floor).
+    fn cell_coordinates(&self, p: Vec3, g_p: f32) -> [f32; 2] {
+        let d = linalg::sub(p, self.centroid);
+        [linalg::dot(d, self.e1) / g_p, linalg::dot(d, self.e2) / g_p]
+    }
+
     /// Cell index (a, b) of a point (equation 9), offset into the grid, or `None` outside it.
     pub fn cell_of(&self, p: Vec3, g_p: f32) -> Option<(usize, usize)> {
-        let d = linalg::sub(p, self.centroid);
+        let [s, t] = self.cell_coordinates(p, g_p);
         let half = (PLANE_GRID / 2) as i32;
-        let a = linalg::floor_i32(linalg::dot(d, self.e1) / g_p) + half;
-        let b = linalg::floor_i32(linalg::dot(d, self.e2) / g_p) + half;
+        let a = linalg::floor_i32(s) + half;
+        let b = linalg::floor_i32(t) + half;
         let range = 0..PLANE_GRID as i32;
         (range.contains(&a) && range.contains(&b)).then_some((a as usize, b as usize))
     }
@@ -234,8 +241,7 @@ pub fn fill_cells(voxels: &[Voxel], gaussians: &[Gaussian], planes: &mut [Plane]
         }
         // The centroid's tangent-plane coordinates in cells from the grid's corner (equation 9); the square's
         // corners are these ± h.
-        let d = linalg::sub(c, plane.centroid);
-        let (s, t) = (linalg::dot(d, plane.e1) / params.g_p + half, linalg::dot(d, plane.e2) / params.g_p + half);
+        let [s, t] = plane.cell_coordinates(c, params.g_p).map(|x| x + half);
         if cell(s).is_none() || cell(t).is_none() {
             plane.clipped_points += u32::from(v.count);
             continue;

@@ -704,7 +704,7 @@ pub fn build_supervoxels(pools: SupervoxelPools<'_, '_>, params: &Params) -> Sup
     }
 }
 
-/// [`build_supervoxels`]; `LINKED`: neighbours and centroids from `links`.
+/// [`build_supervoxels`]; `LINKED`: neighbours from `links`.
 fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks], params: &Params) -> SupervoxelStats {
     let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels, links: _ } = pools;
     let mut stats = SupervoxelStats::default();
@@ -762,11 +762,6 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         let dn = 1.0 - linalg::dot(nv, sv.normal);
         Some(w_c * linalg::dot(dc, dc) + w_s * linalg::dot(ds, ds) + w_n * dn * dn)
     };
-    let features = |voxels: &[Voxel], j: usize| {
-        let v = voxels.get(j)?;
-        let c = v.centroid();
-        Some((c, v.unit_normal(), v.colour()))
-    };
     for round in 2..=max_rounds.saturating_add(1) {
         // Pass A: every unlabelled neighbour of last round's voxels is a candidate of this round, and takes the
         // nearest (VCCS distance; ties: lower index) of the supervoxels of those voxels around it, kept in its
@@ -798,10 +793,11 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
                     candidates += 1;
                     true
                 } else if st == CANDIDATE | round && label != v.gaussian {
-                    let f = features(voxels, j);
-                    let d =
-                        f.and_then(|f| Some((distance(supervoxels, f, label)?, distance(supervoxels, f, v.gaussian)?)));
-                    d.is_some_and(|(d2, bd)| d2 < bd || (d2 == bd && label < v.gaussian))
+                    let f = (v.centroid(), v.unit_normal(), v.colour());
+                    match (distance(supervoxels, f, label), distance(supervoxels, f, v.gaussian)) {
+                        (Some(d2), Some(bd)) => d2 < bd || (d2 == bd && label < v.gaussian),
+                        _ => false,
+                    }
                 } else {
                     false
                 };
@@ -970,7 +966,7 @@ mod tests {
         }
     }
 
-    /// The links hold exactly the neighbours the hash gives, in its order and with the same centroids: a blob
+    /// The links hold exactly the neighbours the hash gives, in its order: a blob
     /// with holes in two mask slots, at the centre of the key range and against each of its ends.
     #[test]
     fn voxel_links_are_the_hash_neighbours() {
