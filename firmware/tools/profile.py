@@ -5,7 +5,8 @@ QEMU does not model the DWT cycle counter and has no profiler here, so this coun
 `-d in_asm,exec,nochain`, every translated block is printed once with its instructions (`in_asm`) and every
 execution of a block once (`exec`, with `nochain` so that chained blocks are logged too). Instructions per
 block times executions, summed by the innermost `m2smap_core` function of the block's first address
-(`arm-none-eabi-addr2line -i`, so LTO-inlined code is named too), and by source line.
+(`arm-none-eabi-addr2line -i`, so LTO-inlined code is named too), by every function of the inline chain
+(inclusive of what was inlined into it), and by source line.
 
 usage: profile.py QEMU_LOG ELF [TOP]
 """
@@ -50,9 +51,11 @@ def main():
             i += 2
     if pc is not None:
         chains[pc] = chain
-    by_fn, by_line = collections.Counter(), collections.Counter()
+    by_fn, by_line, inclusive = collections.Counter(), collections.Counter(), collections.Counter()
     for p in pcs:
         chain = chains.get(p, [])
+        for fn in {fn.split('::{{closure}}')[0] for fn, _ in chain if 'm2smap' in fn}:
+            inclusive[fn] += cost[p]
         core = [fn for fn, _ in chain if 'm2smap_core' in fn]
         name = (core[0] if core else chain[0][0] if chain else '?').split('::{{closure}}')[0]
         by_fn[name] += cost[p]
@@ -61,6 +64,9 @@ def main():
     print(f'{total / 1e6:.2f} M instructions in the run')
     print('\nby innermost core function:')
     for name, k in by_fn.most_common(top):
+        print(f'{k / 1e6:9.2f} M {100 * k / total:5.1f} %  {name}')
+    print('\nby core function with what is inlined into it (inclusive; calls that are not inlined are not counted):')
+    for name, k in inclusive.most_common(top):
         print(f'{k / 1e6:9.2f} M {100 * k / total:5.1f} %  {name}')
     print('\nby source line:')
     for (line, name), k in by_line.most_common(top):
