@@ -163,10 +163,15 @@ fn bench_segmented<P: Profile>(
 /// Prints one table row.
 fn row(name: &str, frames: usize, t: &Timing) {
     let cells: Vec<String> = t.times.iter().map(|v| format!("{:.3}", median(v))).collect();
+    let points: Vec<f64> = t.reports.iter().map(|r| r.points as f64).collect();
+    let ns_per_point: Vec<f64> =
+        t.times[6].iter().zip(&points).filter(|(_, &n)| n > 0.0).map(|(ms, n)| ms * 1e6 / n).collect();
     println!(
-        "| {name} | {frames} | {} | {:.1} | {:.0} |",
+        "| {name} | {frames} | {} | {:.1} | {:.0} | {:.0} | {:.0} |",
         cells.join(" | "),
         median(&t.gaussians),
+        median(&points),
+        median(&ns_per_point),
         1e3 / median(&t.times[6])
     );
 }
@@ -208,8 +213,8 @@ fn main() {
     let full = Params::default();
     let mmp = Params { variant: Variant::Mmp, ..Params::default() };
     println!("median ms per stage (single thread, release, {REPS} repetitions of each frame)\n");
-    println!("| data (profile) | frames | {} | Gaussians | Hz |", STAGES.join(" | "));
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("| data (profile) | frames | {} | Gaussians | points | ns per point | Hz |", STAGES.join(" | "));
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut host = bytemuck::zeroed_box::<HostStorage>();
     let mut mcu = bytemuck::zeroed_box::<McuStorage>();
     let (mut notes, mut cold, mut skipped) = (Vec::<String>::new(), Vec::<String>::new(), Vec::<String>::new());
@@ -280,6 +285,11 @@ fn main() {
     }
 
     println!();
+    println!(
+        "points: the sampled in-range points per frame (median); ns per point: the frame's total over them. \
+         Instructions per point are counted where they are deterministic: `make firmware` prints them per stage \
+         for the Cortex-M7 (QEMU -icount), and callgrind on the host (docs/pipeline.md)."
+    );
     for n in &notes {
         println!("{n}");
     }
