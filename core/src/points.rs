@@ -212,6 +212,18 @@ impl PixelWindow {
 /// [`for_each_point`] restricted to the pixels of `window`: exactly the points of the whole-image pass that fall
 /// inside it, in the same order (the sample is keyed by pixel index).
 pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow, f: impl FnMut(&Point)) {
+    walk_window::<true>(frame, params, window, f);
+}
+
+/// [`for_each_point_in`] without the colours: every point's `rgb` is `[0, 0, 0]`. For the passes after
+/// voxelisation, which keeps the colours in the voxels (the Cortex-M7 saves the colour's load per point).
+pub fn for_each_position_in(frame: &Frame<'_>, params: &Params, window: PixelWindow, f: impl FnMut(&Point)) {
+    walk_window::<false>(frame, params, window, f);
+}
+
+/// [`for_each_point_in`]; `COLOUR`: read each point's colour.
+#[inline(always)]
+fn walk_window<const COLOUR: bool>(frame: &Frame<'_>, params: &Params, window: PixelWindow, f: impl FnMut(&Point)) {
     let sampler = Sampler::with(params.sample_seed, sample_threshold(params.sample_rate));
     // Where the keep test vectorises, hashing every pixel is as cheap as the table (measured: the table was
     // 1–3 % slower on the host); elsewhere (the Cortex-M7) the table of the default sample saves the hash of
@@ -223,7 +235,7 @@ pub fn for_each_point_in(frame: &Frame<'_>, params: &Params, window: PixelWindow
     } else {
         Walk::Pixels
     };
-    walk_points(frame, params, window, sampler, walk, f);
+    walk_points::<COLOUR>(frame, params, window, sampler, walk, f);
 }
 
 /// How a pass finds the kept pixels of a row: the same pixels, in the same order, each way.
@@ -238,9 +250,10 @@ enum Walk {
     Pixels,
 }
 
-/// [`for_each_point_in`] with the pixels found by `walk`; `sampler` is the sample of `params`.
+/// [`for_each_point_in`] with the pixels found by `walk`; `sampler` is the sample of `params`; `COLOUR`: read
+/// the colours (else `[0, 0, 0]`).
 #[inline(always)]
-fn walk_points(
+fn walk_points<const COLOUR: bool>(
     frame: &Frame<'_>,
     params: &Params,
     window: PixelWindow,
@@ -260,7 +273,13 @@ fn walk_points(
     let n_rows = (window.v1 as usize + 1).saturating_sub(first_row);
     for (v, (row, rgb_row)) in rows.skip(first_row).take(n_rows) {
         let mut emit = |u: usize| {
-            let (Some(&raw), Some(rgb)) = (row.get(u), rgb_row.get(3 * u..3 * u + 3)) else { return };
+            let Some(&raw) = row.get(u) else { return };
+            let rgb: &[u8] = if COLOUR {
+                let Some(rgb) = rgb_row.get(3 * u..3 * u + 3) else { return };
+                rgb
+            } else {
+                &[]
+            };
             f(&Point::from_pixel(frame, u, v, raw, rgb));
         };
         let span = row.get(u0..=u1).unwrap_or(&[]);
@@ -457,12 +476,19 @@ mod tests {
             for window in windows {
                 let points = |walk: Walk| {
                     let mut out = Vec::new();
-                    walk_points(&frame, &params, window, sampler, walk, |p| {
+                    walk_points::<true>(&frame, &params, window, sampler, walk, |p| {
                         out.push((p.u, p.v, p.xyz.map(f32::to_bits)))
                     });
                     out
                 };
                 let blocks = points(Walk::Blocks);
+                // Without the colours: the same points, each with rgb [0, 0, 0].
+                let mut positions = Vec::new();
+                for_each_position_in(&frame, &params, window, |p| {
+                    assert_eq!(p.rgb, [0; 3]);
+                    positions.push((p.u, p.v, p.xyz.map(f32::to_bits)));
+                });
+                assert_eq!(positions, blocks, "positions over {window:?}");
                 if window == PixelWindow::WHOLE {
                     assert!(blocks.len() > 30_000 && blocks.iter().any(|p| (p.1 as usize) * W >= SAMPLE_TABLE_PIXELS));
                 }

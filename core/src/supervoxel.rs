@@ -305,7 +305,8 @@ pub const NO_VOXEL: u16 = u16::MAX;
 /// into (`None` when it found no voxel: pool full or outside the key range). `masks` must be the ones the
 /// voxels were made with. `sampled`: voxelisation's complete list of this frame's points
 /// ([`SampledPoint`]), else `None` and the points are sampled and hashed again — the same points, voxels and
-/// order either way. The one way every stage after voxelisation revisits the points.
+/// order either way. The one way every stage after voxelisation revisits the points. The points carry no colour
+/// (`rgb` is `[0, 0, 0]`): the voxels keep it.
 pub fn for_each_voxel_point(
     frame: &Frame<'_>,
     params: &Params,
@@ -334,14 +335,13 @@ pub fn for_each_voxel_point_in(
     // Two functions, each calling `f` once, so that each inlines it (the pass over the pixels is the code
     // the mcu profile runs, instruction for instruction).
     match sampled {
-        Some(list) => for_each_listed_point(frame, voxels, list, window, f),
+        Some(list) => for_each_listed_point(voxels, list, window, f),
         None => for_each_resampled_point(frame, params, masks, voxels, slots, window, f),
     }
 }
 
 /// [`for_each_voxel_point_in`] from voxelisation's list of the frame's points.
 fn for_each_listed_point(
-    frame: &Frame<'_>,
     voxels: &[Voxel],
     list: &[SampledPoint],
     window: points::PixelWindow,
@@ -356,10 +356,8 @@ fn for_each_listed_point(
         if s.u < window.u0 || s.u > window.u1 {
             continue;
         }
-        // The listed position (no division again); the colour from the frame.
-        let i = s.v as usize * frame.width as usize + s.u as usize;
-        let Some(&[r, g, b]) = frame.colour.get(3 * i..3 * i + 3) else { continue };
-        let p = points::Point { u: s.u, v: s.v, xyz: s.xyz, rgb: [r, g, b] };
+        // The listed position (no division again); no colour (the voxels keep it).
+        let p = points::Point { u: s.u, v: s.v, xyz: s.xyz, rgb: [0; 3] };
         f(&p, voxels.get(s.voxel as usize).map(|v| (s.voxel as usize, v)));
     }
 }
@@ -381,13 +379,13 @@ fn for_each_resampled_point(
         // A window's pass (the superquadric stage's) without the last voxel: with it the Cortex-M7 took 0.8 M
         // instructions more per cabinet frame there (its callback no longer inlined), for 1.0 M less in the
         // whole-image pass of the Gaussians.
-        points::for_each_point_in(frame, params, window, |p| {
+        points::for_each_position_in(frame, params, window, |p| {
             f(p, voxel_at(voxels, slots, p.xyz, r, point_slot(masks, params, p.u, p.v, &mut slot_cache)));
         });
         return;
     }
     let mut last = LastVoxel::default();
-    points::for_each_point_in(frame, params, window, |p| {
+    points::for_each_position_in(frame, params, window, |p| {
         let slot = point_slot(masks, params, p.u, p.v, &mut slot_cache);
         let i = voxel_key(p.xyz, r, slot).and_then(|k| last.find(k, |k| find_voxel(voxels, slots, k)));
         f(p, i.and_then(|i| voxels.get(i).map(|v| (i, v))));
