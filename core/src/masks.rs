@@ -183,6 +183,36 @@ impl<'a> MaskSet<'a> {
 mod tests {
     use super::*;
 
+    /// Both layouts give every pixel the same voxel slot, through one cache or a fresh one per pixel: the first
+    /// usable instance's, 0 below the confidence or outside every instance.
+    #[test]
+    fn voxel_slots_agree_in_both_layouts() {
+        // 4 × 2 pixels: row 0 = [1, 1, 2, 3], row 1 = [0, 2, 2, 3]; instance 2 scores below the threshold.
+        let ids = [1u16, 1, 2, 3, 0, 2, 2, 3];
+        let instances = [
+            Instance { id: 1, class: 0, score: 0.9, bbox: [0, 0, 1, 0] },
+            Instance { id: 2, class: 0, score: 0.2, bbox: [1, 0, 2, 1] },
+            Instance { id: 3, class: 0, score: 0.8, bbox: [3, 0, 3, 1] },
+        ];
+        let mut planes = [0u8; 3];
+        for (i, &id) in ids.iter().enumerate() {
+            if id != 0 {
+                planes[usize::from(id) - 1] |= 1 << i;
+            }
+        }
+        let expected = [1u32, 1, 0, 3, 0, 0, 0, 3];
+        for pixels in [MaskPixels::IdImage(&ids), MaskPixels::BitPlanes(&planes)] {
+            let m = MaskSet { width: 4, height: 2, instances: &instances, pixels };
+            let mut cache = SlotCache::default();
+            for (i, &slot) in expected.iter().enumerate() {
+                let (u, v) = ((i % 4) as u16, (i / 4) as u16);
+                assert_eq!(m.voxel_slot_cached(u, v, 0.5, &mut cache), slot, "pixel {i} through one cache");
+                assert_eq!(m.voxel_slot(u, v, 0.5), slot, "pixel {i}");
+            }
+            assert_eq!(m.voxel_slot(4, 0, 0.5), 0, "outside the image");
+        }
+    }
+
     /// Another usable instance holds a pixel in either layout; the own instance, an instance below the
     /// confidence, no instance and a pixel outside the image do not.
     #[test]
