@@ -272,16 +272,7 @@ fn walk_points<const COLOUR: bool>(
     let first_row = window.v0 as usize;
     let n_rows = (window.v1 as usize + 1).saturating_sub(first_row);
     for (v, (row, rgb_row)) in rows.skip(first_row).take(n_rows) {
-        let mut emit = |u: usize| {
-            let Some(&raw) = row.get(u) else { return };
-            let rgb: &[u8] = if COLOUR {
-                let Some(rgb) = rgb_row.get(3 * u..3 * u + 3) else { return };
-                rgb
-            } else {
-                &[]
-            };
-            f(&Point::from_pixel(frame, u, v, raw, rgb));
-        };
+        let mut emit = |u: usize| emit_point::<COLOUR>(frame, row, rgb_row, u, v, &mut f);
         let span = row.get(u0..=u1).unwrap_or(&[]);
         // The table covers the row when it covers its last block (then it covers each of them).
         let last_block = v * w + u0 + BLOCK * (span.len().saturating_sub(1) / BLOCK);
@@ -322,6 +313,28 @@ fn walk_points<const COLOUR: bool>(
             }
         }
     }
+}
+
+/// The point of pixel `u` of row `v` (`row`, `rgb_row` its depths and colours) to `f`. Inlined into each way of
+/// [`walk_points`], so that `f` is inlined into each loop (as a closure called from the three, it was one
+/// function called per point on the Cortex-M7).
+#[inline(always)]
+fn emit_point<const COLOUR: bool>(
+    frame: &Frame<'_>,
+    row: &[u16],
+    rgb_row: &[u8],
+    u: usize,
+    v: usize,
+    f: &mut impl FnMut(&Point),
+) {
+    let Some(&raw) = row.get(u) else { return };
+    let rgb: &[u8] = if COLOUR {
+        let Some(rgb) = rgb_row.get(3 * u..3 * u + 3) else { return };
+        rgb
+    } else {
+        &[]
+    };
+    f(&Point::from_pixel(frame, u, v, raw, rgb));
 }
 
 #[cfg(test)]
