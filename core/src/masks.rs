@@ -113,7 +113,7 @@ impl<'a> MaskSet<'a> {
 
     /// [`MaskSet::voxel_slot`] that keeps the last id-image lookup in `cache` (neighbouring pixels mostly share
     /// an id). One cache serves one `min_confidence`.
-    #[inline]
+    #[inline(always)]
     pub fn voxel_slot_cached(&self, u: u16, v: u16, min_confidence: f32, cache: &mut SlotCache) -> u32 {
         if u >= self.width || v >= self.height {
             return 0;
