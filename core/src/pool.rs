@@ -186,13 +186,23 @@ impl<'a, T: Copy> Bounded<'a, T> {
     }
 
     /// Element `i`, if in use.
+    #[inline]
     pub fn get(&self, i: usize) -> Option<&T> {
-        self.as_slice().get(i)
+        if i < self.len {
+            self.items.get(i)
+        } else {
+            None
+        }
     }
 
     /// Element `i`, mutable, if in use.
+    #[inline]
     pub fn get_mut(&mut self, i: usize) -> Option<&mut T> {
-        self.as_mut_slice().get_mut(i)
+        if i < self.len {
+            self.items.get_mut(i)
+        } else {
+            None
+        }
     }
 
     /// Use since the last [`Bounded::clear`].
