@@ -183,6 +183,17 @@ impl<'a> MaskSet<'a> {
 mod tests {
     use super::*;
 
+    /// The three one-byte bit planes of an 8-pixel id image with ids 1–3 (0: no instance).
+    fn bit_planes(ids: &[u16; 8]) -> [u8; 3] {
+        let mut planes = [0u8; 3];
+        for (i, &id) in ids.iter().enumerate() {
+            if id != 0 {
+                planes[usize::from(id) - 1] |= 1 << i;
+            }
+        }
+        planes
+    }
+
     /// Both layouts give every pixel the same voxel slot, through one cache or a fresh one per pixel: the first
     /// usable instance's, 0 below the confidence or outside every instance.
     #[test]
@@ -194,12 +205,7 @@ mod tests {
             Instance { id: 2, class: 0, score: 0.2, bbox: [1, 0, 2, 1] },
             Instance { id: 3, class: 0, score: 0.8, bbox: [3, 0, 3, 1] },
         ];
-        let mut planes = [0u8; 3];
-        for (i, &id) in ids.iter().enumerate() {
-            if id != 0 {
-                planes[usize::from(id) - 1] |= 1 << i;
-            }
-        }
+        let planes = bit_planes(&ids);
         let expected = [1u32, 1, 0, 3, 0, 0, 0, 3];
         for pixels in [MaskPixels::IdImage(&ids), MaskPixels::BitPlanes(&planes)] {
             let m = MaskSet { width: 4, height: 2, instances: &instances, pixels };
@@ -224,12 +230,7 @@ mod tests {
             Instance { id: 2, class: 0, score: 0.9, bbox: [1, 0, 2, 1] },
             Instance { id: 3, class: 0, score: 0.1, bbox: [3, 0, 3, 0] },
         ];
-        let mut planes = [0u8; 3];
-        for (i, &id) in ids.iter().enumerate() {
-            if id != 0 {
-                planes[usize::from(id) - 1] |= 1 << i;
-            }
-        }
+        let planes = bit_planes(&ids);
         for pixels in [MaskPixels::IdImage(&ids), MaskPixels::BitPlanes(&planes)] {
             let m = MaskSet { width: 4, height: 2, instances: &instances, pixels };
             let held = |u, v| m.held_by_other(u, v, 1, 0.5);
