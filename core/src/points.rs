@@ -20,7 +20,7 @@ pub struct Point {
     pub v: u16,
     /// Camera-frame position, metres.
     pub xyz: Vec3,
-    /// Colour from the registered RGB image.
+    /// Colour from the registered RGB image (`[0, 0, 0]` from [`for_each_position_in`]).
     pub rgb: [u8; 3],
 }
 
