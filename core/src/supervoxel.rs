@@ -510,13 +510,7 @@ fn add_point(
         stats.dropped_points += 1;
         return None;
     };
-    let index = match last.hit {
-        Some((k, i)) if k == key => Some(i),
-        _ => probe_or_insert(key, max_index, voxels, slots, stats),
-    };
-    if let Some(i) = index {
-        last.hit = Some((key, i));
-    }
+    let index = last.find(key, |key| probe_or_insert(key, max_index, voxels, slots, stats));
     let Some(v) = index.and_then(|i| voxels.get_mut(i)) else {
         stats.dropped_points += 1;
         return None;
