@@ -49,9 +49,11 @@ pub struct Voxel {
     pub key: u32,
     /// Points in the voxel.
     pub count: u16,
-    /// Supervoxel index, or [`UNLABELLED`], [`OUTLIER`], [`DROPPED`].
+    /// Supervoxel index, or [`UNLABELLED`], [`OUTLIER`], [`DROPPED`]. Between the normals and growth of a
+    /// profile without links, bits 16–25 of the directions in which the normals found a neighbour.
     pub supervoxel: u16,
-    /// Gaussian index after stage 3, or a label constant.
+    /// Gaussian index after stage 3, or a label constant. From the normals through growth of a profile without
+    /// links, bits 0–15 of the directions in which the normals found a neighbour.
     pub gaussian: u16,
     /// Unit normal × 32767, facing the camera.
     pub normal: [i16; 3],
@@ -236,27 +238,60 @@ const NEIGHBOURS: [([i32; 3], i32); 26] = {
     out
 };
 
+/// Every direction of [`NEIGHBOURS`] as a bit set: bit d for direction d.
+pub const ALL_DIRECTIONS: u32 = (1 << 26) - 1;
+
 /// Calls `f(j)` for each occupied voxel j among the 26 neighbours of the voxel with `key` (in its mask slot).
 #[inline]
 pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl FnMut(usize)) {
+    for_each_neighbour_towards(voxels, slots, key, |_, j| f(j));
+}
+
+/// [`for_each_neighbour`], calling `f(bit, j)` with the bit of the direction d (`1 << d`, d an index into
+/// [`NEIGHBOURS`]) of each occupied neighbour j.
+#[inline(always)]
+fn for_each_neighbour_towards(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl FnMut(u32, usize)) {
     let (x, y, z) = unpack(key);
     let h = VOXEL_GRID_HALF_EXTENT;
-    let mut visit = |k: u32| {
+    let mut visit = |bit: u32, k: u32| {
         if let Some(j) = find_voxel(voxels, slots, k) {
-            f(j);
+            f(bit, j);
         }
     };
+    let mut bit = 1u32;
     if -h < x && x < h && -h < y && y < h && 0 < z && z < h {
         // Inside the key range with a margin of one: every neighbour key is the key plus a fixed offset.
         for &(_, delta) in &NEIGHBOURS {
-            visit(key.wrapping_add_signed(delta));
+            visit(bit, key.wrapping_add_signed(delta));
+            bit <<= 1;
         }
     } else {
         let slot = key_slot(key);
         for &([dx, dy, dz], _) in &NEIGHBOURS {
             if let Some(k) = pack(x + dx, y + dy, z + dz, slot) {
-                visit(k);
+                visit(bit, k);
             }
+            bit <<= 1;
+        }
+    }
+}
+
+/// [`for_each_neighbour`] over the directions set in `directions` only (bit d for direction d), in the same
+/// order: growth's walk through the hash, given the directions in which the normals found a neighbour, so that
+/// the empty ones (57 % of them on cabinet frames) are not looked up again.
+#[inline]
+fn for_each_neighbour_among(voxels: &[Voxel], slots: &[u16], key: u32, directions: u32, mut f: impl FnMut(usize)) {
+    let (x, y, z) = unpack(key);
+    let h = VOXEL_GRID_HALF_EXTENT;
+    let inside = -h < x && x < h && -h < y && y < h && 0 < z && z < h;
+    let mut bits = directions & ALL_DIRECTIONS;
+    while bits != 0 {
+        let d = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        let Some(&([dx, dy, dz], delta)) = NEIGHBOURS.get(d) else { continue };
+        let k = if inside { Some(key.wrapping_add_signed(delta)) } else { pack(x + dx, y + dy, z + dz, key_slot(key)) };
+        if let Some(j) = k.and_then(|k| find_voxel(voxels, slots, k)) {
+            f(j);
         }
     }
 }
@@ -656,12 +691,17 @@ pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], links: &mut [VoxelLi
             let c = v.centroid();
             let mut m = Moments::about(c);
             m.add(c, 1.0);
-            for_each_neighbour(voxels, slots, v.key, |j| {
+            let mut occupied = 0u32;
+            for_each_neighbour_towards(voxels, slots, v.key, |bit, j| {
+                occupied |= bit;
                 if let Some(n) = voxels.get(j) {
                     m.add(n.centroid(), 1.0);
                 }
             });
             set_normal(voxels, i, c, &m);
+            if let Some(v) = voxels.get_mut(i) {
+                set_occupied_directions(v, occupied);
+            }
         }
         return false;
     }
@@ -678,6 +718,22 @@ pub fn compute_normals(voxels: &mut [Voxel], slots: &[u16], links: &mut [VoxelLi
         set_normal(voxels, i, c, &m);
     }
     true
+}
+
+/// Keeps the directions in which [`compute_normals`] found a neighbour (bit d for direction d of [`NEIGHBOURS`])
+/// in the voxel's `gaussian` (bits 0–15) and `supervoxel` (bits 16–25) fields, which nothing reads between the
+/// normals and supervoxel growth; growth takes them from there ([`occupied_directions`]).
+#[inline]
+fn set_occupied_directions(v: &mut Voxel, occupied: u32) {
+    v.gaussian = occupied as u16;
+    v.supervoxel = (occupied >> 16) as u16;
+}
+
+/// The directions [`set_occupied_directions`] kept in `v`. [`voxelize`] leaves both fields at [`UNLABELLED`],
+/// which reads as every direction: growth without the normals before it still visits every neighbour.
+#[inline]
+fn occupied_directions(v: &Voxel) -> u32 {
+    (v.gaussian as u32 | (v.supervoxel as u32) << 16) & ALL_DIRECTIONS
 }
 
 /// Sets voxel `i`'s normal from the moments `m` of its neighbourhood's centroids (`c` its own), turned towards
@@ -732,8 +788,18 @@ pub struct SupervoxelStats {
     pub dropped_points: u32,
 }
 
-/// Scratch stamps during growth: 0 = untouched, r = claimed in round r, `CANDIDATE | r` = reachable in round r.
-const CANDIDATE: u16 = 0x8000;
+/// Growth's state of a voxel, bits 0–1 of its scratch entry: not reached yet.
+const UNTOUCHED: u16 = 0;
+/// Reached in this round: it joins the supervoxel in its `supervoxel` field at the round's end.
+const CANDIDATE: u16 = 1;
+/// Claimed in the last round: its neighbours are visited in this one.
+const FRONTIER: u16 = 2;
+/// Claimed in an earlier round, its neighbours visited.
+const CLAIMED: u16 = 3;
+/// The bits of the growth state.
+const GROWTH_STATE: u16 = 3;
+/// Most growth rounds, whatever the resolutions.
+const MAX_GROWTH_ROUNDS: u16 = 0x7ffe;
 
 /// Storage the supervoxel stage works in.
 pub struct SupervoxelPools<'a, 'b> {
@@ -765,15 +831,20 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
     let SupervoxelPools { voxels, slots, scratch, seeds, supervoxels, links: _ } = pools;
     let mut stats = SupervoxelStats::default();
     supervoxels.clear();
-    for v in voxels.iter_mut() {
+    let n = voxels.len().min(scratch.len());
+    // Each scratch entry: the voxel's growth state in bits 0–1, and without links the upper 10 of its occupied
+    // directions (the lower 16 stay in its `gaussian` field, which growth does not use).
+    for (i, v) in voxels.iter_mut().enumerate() {
+        if let Some(st) = scratch.get_mut(i) {
+            *st = if LINKED { UNTOUCHED } else { ((occupied_directions(v) >> 16) as u16) << 2 };
+        }
         v.supervoxel = UNLABELLED;
     }
-    let n = voxels.len().min(scratch.len());
     let scratch = match scratch.get_mut(..n) {
         Some(s) => s,
         None => return stats,
     };
-    scratch.fill(0);
+    let set_state = |st: &mut u16, state: u16| *st = (*st & !GROWTH_STATE) | state;
 
     // --- seeds: nearest voxel to the centre of each sufficiently occupied seed cube --------------------------
     choose_seed_cells(voxels, seeds, params);
@@ -781,11 +852,11 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
     // marked in the scratch, then started in voxel order.
     for cell in seeds.as_slice().iter().filter(|s| s.voxels > 0 && s.voxels >= params.seed_min_voxels) {
         if let Some(st) = scratch.get_mut(cell.best as usize) {
-            *st = 1;
+            set_state(st, FRONTIER);
         }
     }
     for i in 0..n {
-        if scratch.get(i).copied() != Some(1) {
+        if scratch.get(i).map(|st| st & GROWTH_STATE) != Some(FRONTIER) {
             continue;
         }
         let Some(v) = voxels.get(i).copied() else { continue };
@@ -798,7 +869,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             }
             None => {
                 if let Some(st) = scratch.get_mut(i) {
-                    *st = 0;
+                    set_state(st, UNTOUCHED);
                 }
             }
         }
@@ -806,7 +877,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
 
     // --- flow-constrained growth in rounds ------------------------------------------------------------------
     let max_rounds = libm::ceilf(1.8 * params.seed_resolution / params.voxel_resolution) as u32;
-    let max_rounds = max_rounds.min((CANDIDATE - 2) as u32) as u16;
+    let max_rounds = max_rounds.min(MAX_GROWTH_ROUNDS as u32) as u16;
     let w_c = params.color_importance;
     let w_s = params.spatial_importance / (3.0 * params.seed_resolution * params.seed_resolution);
     let w_n = params.normal_importance;
@@ -819,46 +890,56 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         Some(w_c * linalg::dot(dc, dc) + w_s * linalg::dot(ds, ds) + w_n * dn * dn)
     };
     for round in 2..=max_rounds.saturating_add(1) {
-        // Pass A: every unlabelled neighbour of last round's voxels is a candidate of this round, and takes the
-        // nearest (VCCS distance; ties: lower index) of the supervoxels of those voxels around it, kept in its
-        // `gaussian` field (free until stage 3). Those are all its labelled neighbours: a voxel next to one
-        // claimed earlier was claimed the round after.
+        // Pass A: every untouched neighbour of last round's voxels (the frontier) is a candidate of this round,
+        // and takes the nearest (VCCS distance; ties: lower index) of the supervoxels of those voxels around it,
+        // kept in its `supervoxel` field while it is a candidate. Those are all its labelled neighbours: a voxel
+        // next to one claimed earlier was claimed the round after.
         let mut candidates = 0u32;
         for i in 0..n {
-            if scratch.get(i).copied() != Some(round - 1) {
+            let Some(st) = scratch.get(i).copied() else { continue };
+            if st & GROWTH_STATE != FRONTIER {
                 continue;
             }
-            let Some((key, label)) = voxels.get(i).map(|v| (v.key, v.supervoxel)) else { continue };
+            let Some(v) = voxels.get(i) else { continue };
+            let (key, label) = (v.key, v.supervoxel);
             let (mut around, mut k) = ([0u16; 26], 0);
-            for_each_linked_neighbour::<LINKED>(voxels, slots, links, i, key, |j| {
+            let mut keep = |j: usize| {
                 if let Some(a) = around.get_mut(k) {
                     *a = j as u16;
                     k += 1;
                 }
-            });
+            };
+            if LINKED {
+                for_each_linked_neighbour::<true>(voxels, slots, links, i, key, keep);
+            } else {
+                let occupied = v.gaussian as u32 | ((st >> 2) as u32) << 16;
+                for_each_neighbour_among(voxels, slots, key, occupied, &mut keep);
+            }
+            if let Some(s) = scratch.get_mut(i) {
+                set_state(s, CLAIMED);
+            }
             for &j in around.get(..k).unwrap_or(&[]) {
                 let j = j as usize;
                 let (Some(&v), Some(&st)) = (voxels.get(j), scratch.get(j)) else { continue };
-                if v.supervoxel != UNLABELLED {
-                    continue;
-                }
-                let take = if st == 0 {
-                    if let Some(s) = scratch.get_mut(j) {
-                        *s = CANDIDATE | round;
+                let take = match st & GROWTH_STATE {
+                    UNTOUCHED => {
+                        if let Some(s) = scratch.get_mut(j) {
+                            set_state(s, CANDIDATE);
+                        }
+                        candidates += 1;
+                        true
                     }
-                    candidates += 1;
-                    true
-                } else if st == CANDIDATE | round && label != v.gaussian {
-                    let f = (v.centroid(), v.unit_normal(), v.colour());
-                    match (distance(supervoxels, f, label), distance(supervoxels, f, v.gaussian)) {
-                        (Some(d2), Some(bd)) => d2 < bd || (d2 == bd && label < v.gaussian),
-                        _ => false,
+                    CANDIDATE if label != v.supervoxel => {
+                        let f = (v.centroid(), v.unit_normal(), v.colour());
+                        match (distance(supervoxels, f, label), distance(supervoxels, f, v.supervoxel)) {
+                            (Some(d2), Some(bd)) => d2 < bd || (d2 == bd && label < v.supervoxel),
+                            _ => false,
+                        }
                     }
-                } else {
-                    false
+                    _ => false,
                 };
                 if let (true, Some(v)) = (take, voxels.get_mut(j)) {
-                    v.gaussian = label;
+                    v.supervoxel = label;
                 }
             }
         }
@@ -866,19 +947,16 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             break;
         }
         stats.rounds = round as u32 - 1;
-        // Pass B: each candidate joins the supervoxel pass A chose, in voxel order.
+        // Pass B: each candidate joins the supervoxel pass A chose, in voxel order, and is the next frontier.
         for i in 0..n {
-            if scratch.get(i).copied() != Some(CANDIDATE | round) {
+            let Some(st) = scratch.get_mut(i) else { continue };
+            if *st & GROWTH_STATE != CANDIDATE {
                 continue;
             }
-            let Some(v) = voxels.get(i).copied() else { continue };
-            let label = v.gaussian;
-            if let Some(sv) = supervoxels.get_mut(label as usize) {
-                sv.add(&v);
-            }
-            if let (Some(vox), Some(st)) = (voxels.get_mut(i), scratch.get_mut(i)) {
-                vox.supervoxel = label;
-                *st = round;
+            set_state(st, FRONTIER);
+            let Some(v) = voxels.get(i) else { continue };
+            if let Some(sv) = supervoxels.get_mut(v.supervoxel as usize) {
+                sv.add(v);
             }
         }
         for sv in supervoxels.as_mut_slice() {
@@ -1063,6 +1141,86 @@ mod tests {
             total += by_hash.len();
         }
         assert!(total > 2000, "{total} neighbour pairs");
+    }
+
+    /// Growth through the hash over the directions the normals found occupied labels every voxel exactly as
+    /// growth over the links and as growth that looks up all 26 directions: a wavy sheet of voxels with holes
+    /// (several seed cells, two mask slots), its voxel means off the cube centres.
+    #[test]
+    fn growth_over_the_occupied_directions_labels_as_over_all_of_them() {
+        const N: usize = 3000;
+        let params = Params::default();
+        let r = params.voxel_resolution;
+        let mut voxels = [Voxel::zeroed(); N];
+        let mut slots = [0u16; 8192];
+        let mut n = 0;
+        for (k, slot) in (0..2900i32).map(|k| (k, (k / 1450) as u32)) {
+            let (x, y) = (k % 50 - 25, k / 50 - 29);
+            // Holes, and a sheet that climbs one cube every few columns (neighbours above and below).
+            if (3 * x + 7 * y) % 11 == 0 {
+                continue;
+            }
+            let z = 40 + (x + 2 * y).rem_euclid(9) / 3;
+            let Some(key) = pack(x, y, z, slot) else { continue };
+            let Probe::Vacant(pos) = pool::probe(&slots, key, |i| voxels.get(i).map(|v| v.key)) else { panic!("hash") };
+            let corner = key_corner(key, r);
+            let off = [0.2 + 0.6 * ((k * 7) % 10) as f32 / 10.0, 0.5, 0.3 + 0.4 * ((k * 3) % 10) as f32 / 10.0];
+            let mean = [corner[0] + off[0] * r, corner[1] + off[1] * r, corner[2] + off[2] * r];
+            let mut v = Voxel { key, count: 1 + (k % 5) as u16, mean, ..Voxel::zeroed() };
+            v.supervoxel = UNLABELLED;
+            v.gaussian = UNLABELLED;
+            v.add_colour([(k % 200) as u8, 90, 30]);
+            voxels[n] = v;
+            slots[pos] = (n + 1) as u16;
+            n += 1;
+        }
+        let grow_labels = |voxels: &mut [Voxel], links: Option<&[VoxelLinks]>| {
+            let (mut scratch, mut seed_cells, mut svs) =
+                ([0u16; N], [SeedCell::zeroed(); 128], [Supervoxel::zeroed(); 128]);
+            let (mut seeds, mut supervoxels) = (Bounded::new(&mut seed_cells), Bounded::new(&mut svs));
+            let pools = SupervoxelPools {
+                voxels,
+                slots: &slots,
+                scratch: &mut scratch,
+                seeds: &mut seeds,
+                supervoxels: &mut supervoxels,
+                links,
+            };
+            let stats = build_supervoxels(pools, &params);
+            (voxels.iter().map(|v| v.supervoxel).collect::<heapless::Vec<u16, N>>(), stats.seeds)
+        };
+        // Over the links (the host profile's path).
+        let mut linked = voxels;
+        let mut links = [VoxelLinks { neighbours: [0; 26], occupied: 0 }; N];
+        assert!(compute_normals(&mut linked[..n], &slots, &mut links));
+        // Through the hash: the normals keep the occupied directions, and they are the links' ones.
+        let mut hashed = voxels;
+        assert!(!compute_normals(&mut hashed[..n], &slots, &mut []));
+        for (i, v) in hashed[..n].iter().enumerate() {
+            assert_eq!(occupied_directions(v), links[i].occupied, "voxel {i}");
+            assert_eq!(v.normal, linked[i].normal, "voxel {i}");
+            let (mut all, mut among) = (heapless::Vec::<usize, 26>::new(), heapless::Vec::<usize, 26>::new());
+            for_each_neighbour(&hashed[..n], &slots, v.key, |j| all.push(j).unwrap());
+            for_each_neighbour_among(&hashed[..n], &slots, v.key, occupied_directions(v), |j| among.push(j).unwrap());
+            assert_eq!(among, all, "voxel {i}");
+        }
+        // Through the hash, every direction looked up (as voxelisation leaves the fields).
+        let mut every = hashed;
+        for v in every[..n].iter_mut() {
+            v.supervoxel = UNLABELLED;
+            v.gaussian = UNLABELLED;
+        }
+        assert_eq!(occupied_directions(&every[0]), ALL_DIRECTIONS);
+        let (by_links, seeds) = grow_labels(&mut linked[..n], Some(&links[..n]));
+        let (by_occupied, _) = grow_labels(&mut hashed[..n], None);
+        let (by_all, _) = grow_labels(&mut every[..n], None);
+        assert!(seeds >= 4, "{seeds} seeds");
+        let assigned = by_links.iter().filter(|&&l| is_assigned(l)).count();
+        assert!(assigned > 9 * n / 10, "{assigned} of {n} voxels in supervoxels");
+        assert_eq!(by_occupied, by_links);
+        assert_eq!(by_all, by_links);
+        let occupied: u32 = links[..n].iter().map(|l| l.occupied.count_ones()).sum();
+        assert!(occupied < 26 * n as u32 / 2, "{occupied} of {} directions occupied", 26 * n);
     }
 
     #[test]
