@@ -92,7 +92,7 @@ impl Gaussian {
 
     /// Principal scales σk = √λk, metres.
     pub fn sigmas(&self) -> Vec3 {
-        [libm::sqrtf(self.eigenvalues[0]), libm::sqrtf(self.eigenvalues[1]), libm::sqrtf(self.eigenvalues[2])]
+        [linalg::sqrt(self.eigenvalues[0]), linalg::sqrt(self.eigenvalues[1]), linalg::sqrt(self.eigenvalues[2])]
     }
 }
 

@@ -64,10 +64,17 @@ pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
+/// √x, correctly rounded (IEEE-754): the same bits on every target, one FPU instruction on the Cortex-M7
+/// ([`m2smap_fpu::sqrt`]; `libm::sqrtf` is a software loop there).
+#[inline]
+pub fn sqrt(x: f32) -> f32 {
+    m2smap_fpu::sqrt(x)
+}
+
 /// ‖a‖.
 #[inline]
 pub fn norm(a: Vec3) -> f32 {
-    libm::sqrtf(dot(a, a))
+    sqrt(dot(a, a))
 }
 
 /// a / ‖a‖, or `fallback` when a is (nearly) zero.
@@ -342,7 +349,7 @@ pub struct Eigen3 {
 impl Eigen3 {
     /// Principal scales σk = √λk, metres.
     pub fn sigmas(&self) -> Vec3 {
-        [libm::sqrtf(self.values[0]), libm::sqrtf(self.values[1]), libm::sqrtf(self.values[2])]
+        [sqrt(self.values[0]), sqrt(self.values[1]), sqrt(self.values[2])]
     }
 
     /// The least-variance direction (the surface normal of a flat cluster).
@@ -457,7 +464,7 @@ fn rotate(a: &mut [[f32; 3]; 3], v: &mut [[f32; 3]; 3], p: usize, q: usize) {
     }
     let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
     let t = {
-        let r = libm::sqrtf(theta * theta + 1.0);
+        let r = sqrt(theta * theta + 1.0);
         let t = 1.0 / (libm::fabsf(theta) + r);
         if theta < 0.0 {
             -t
@@ -465,7 +472,7 @@ fn rotate(a: &mut [[f32; 3]; 3], v: &mut [[f32; 3]; 3], p: usize, q: usize) {
             t
         }
     };
-    let c = 1.0 / libm::sqrtf(t * t + 1.0);
+    let c = 1.0 / sqrt(t * t + 1.0);
     let s = t * c;
     // a ← Jᵀ a J with J the rotation in the (p, q) plane.
     for k in 0..3 {

@@ -318,7 +318,7 @@ impl<'f> Grid<'f> {
                 let n = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
                 let dot = |u: &[f32x4; 3], v: &[f32x4; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
                 // (libm's square root lane by lane: correctly rounded on the host and the Cortex-M7 alike.)
-                let length = f32x4::from(dot(&n, &n).to_array().map(libm::sqrtf));
+                let length = f32x4::from(dot(&n, &n).to_array().map(linalg::sqrt));
                 // linalg::normalize_or(n, 0), then turned towards the camera.
                 let inverse = f32x4::ONE / length;
                 let long = length.simd_gt(f32x4::splat(1e-12));
@@ -1232,7 +1232,7 @@ fn join_insides(
         // Joined, it is still no larger than an object may be.
         let at = |e: &[f32; 6], k: usize| e.get(k).copied().unwrap_or(0.0);
         let span = |k: usize| at(&ea, k + 1).max(at(&eb, k + 1)) - at(&ea, k).min(at(&eb, k));
-        let diagonal = libm::sqrtf(span(0) * span(0) + span(2) * span(2) + span(4) * span(4));
+        let diagonal = linalg::sqrt(span(0) * span(0) + span(2) * span(2) + span(4) * span(4));
         if diagonal > grid.params.seg_max_extent {
             continue;
         }

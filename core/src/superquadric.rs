@@ -137,7 +137,7 @@ pub(crate) const LANES: usize = 4;
 /// The weighted residual r·√‖l‖ of [`Superquadric::residual`] from H = F^ε1 at local coordinates `l`.
 #[inline]
 fn residual_from(h: f32, l: Vec3) -> f32 {
-    (libm::sqrtf(h) - 1.0) * libm::sqrtf(linalg::norm(l).max(1e-3))
+    (linalg::sqrt(h) - 1.0) * linalg::sqrt(linalg::norm(l).max(1e-3))
 }
 
 /// Signed power sign(w)·|w|^e used by the parametric surface.
@@ -1148,7 +1148,7 @@ pub fn behind_occluding_edge(
     own: impl Fn(u16, u16) -> bool,
 ) -> bool {
     let (lo, hi) = frame.raw_range(params);
-    let steepest = libm::sqrtf(1.0 - GRAZING_COS * GRAZING_COS) / GRAZING_COS;
+    let steepest = linalg::sqrt(1.0 - GRAZING_COS * GRAZING_COS) / GRAZING_COS;
     let slope = EDGE_WINDOW as f32 * z / frame.intrinsics.fx.max(1.0) * steepest;
     let nearer_than = z - params.depth_tolerance(z) - slope;
     let (w, h) = (i32::from(frame.width), i32::from(frame.height));
@@ -2294,7 +2294,7 @@ pub fn trimmed_rms_distance(sq: &Superquadric, points: &[Vec3], far: f32) -> (f3
         return (0.0, 0.0);
     }
     let beyond = slice.iter().filter(|&&x| x > far * far).count();
-    (libm::sqrtf(slice.iter().take(kept).sum::<f32>() / kept as f32), beyond as f32 / n as f32)
+    (linalg::sqrt(slice.iter().take(kept).sum::<f32>() / kept as f32), beyond as f32 / n as f32)
 }
 
 /// Fixed part of the margin of [`stays_within_support`], metres.

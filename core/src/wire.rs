@@ -187,7 +187,7 @@ fn rotation_of(bytes: [u8; 6]) -> Result<Mat3, WireError> {
     if s > 1.0 + 1e-3 {
         return Err(WireError::BadValue("rotation"));
     }
-    Ok(linalg::matrix_from_quat([x, y, z, libm::sqrtf((1.0 - s).max(0.0))]))
+    Ok(linalg::matrix_from_quat([x, y, z, linalg::sqrt((1.0 - s).max(0.0))]))
 }
 
 /// Writes the map of frame `frame` into `buf`: `primitives` is called with a sink and must feed it every

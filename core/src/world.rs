@@ -508,7 +508,7 @@ impl<'s> WorldMap<'s> {
                 libm::fabsf(lo).max(libm::fabsf(hi)) * p.g_p
             };
             let (u, v) = (far(i0, i1, p.cells.a0), far(j0, j1, p.cells.b0));
-            libm::sqrtf(u * u + v * v)
+            linalg::sqrt(u * u + v * v)
         });
         let mut best: Option<(usize, f32)> = None;
         for (i, w) in self.planes.as_slice().iter().enumerate() {
@@ -879,7 +879,7 @@ impl<'s> WorldMap<'s> {
         self.planes.as_slice().iter().any(|p| {
             let q = linalg::sub(mean, p.origin);
             let offset = libm::fabsf(linalg::dot(q, p.normal));
-            let within = offset + 2.0 * libm::sqrtf(linalg::variance_along(covariance, p.normal)) <= EXPLAINED_M;
+            let within = offset + 2.0 * linalg::sqrt(linalg::variance_along(covariance, p.normal)) <= EXPLAINED_M;
             if offset > EXPLAINED_M || (!within && libm::fabsf(linalg::dot(e.normal(), p.normal)) < cos_min) {
                 return false;
             }
@@ -1053,7 +1053,7 @@ pub fn plane_view(p: &WorldPlane, g_p: f32) -> MapPlane<'_> {
     MapPlane {
         centroid: p.origin,
         rotation: linalg::from_columns(p.e1, p.e2, p.normal),
-        sigmas: [libm::sqrtf(cov[0].max(0.0)), libm::sqrtf(cov[3].max(0.0)), p.thickness],
+        sigmas: [linalg::sqrt(cov[0].max(0.0)), linalg::sqrt(cov[3].max(0.0)), p.thickness],
         eigen_ratio: p.eigen_ratio,
         colour: p.colour,
         cluster: 0,
@@ -1137,7 +1137,7 @@ fn centred(k: usize) -> (f32, f32) {
 /// How far the centre of cell `k` (a bit index) of a world grid of `g`-metre cells lies from its origin, metres.
 fn cell_reach(k: usize, g: f32) -> f32 {
     let (a, b) = centred(k);
-    libm::sqrtf(a * a + b * b) * g
+    linalg::sqrt(a * a + b * b) * g
 }
 
 /// The centre of cell `k` (a bit index) of world plane `p`'s shown grid of `g`-metre cells, world frame.
