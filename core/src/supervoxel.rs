@@ -181,10 +181,20 @@ pub struct SeedCell {
 /// [`crate::masks::MaskSet::voxel_slot`]); without masks every point is in slot 0.
 #[inline]
 pub fn voxel_key(p: Vec3, resolution: f32, slot: u32) -> Option<u32> {
-    let ix = linalg::floor_i32(p[0] / resolution);
-    let iy = linalg::floor_i32(p[1] / resolution);
-    let iz = linalg::floor_i32(p[2] / resolution);
+    let [ix, iy, iz] = voxel_cube(p, resolution);
     pack(ix, iy, iz, slot)
+}
+
+/// The integer cube coordinates (x, y, z) of `p` at `resolution`, those [`voxel_key`] packs.
+#[inline]
+fn voxel_cube(p: Vec3, resolution: f32) -> [i32; 3] {
+    p.map(|c| linalg::floor_i32(c / resolution))
+}
+
+/// Corner (minimum) of the cube with integer coordinates `cube`, metres: [`key_corner`] of its key.
+#[inline]
+fn cube_corner(cube: [i32; 3], resolution: f32) -> Vec3 {
+    cube.map(|c| c as f32 * resolution)
 }
 
 #[inline]
@@ -212,7 +222,7 @@ pub fn key_slot(key: u32) -> u32 {
 #[inline]
 pub fn key_corner(key: u32, resolution: f32) -> Vec3 {
     let (x, y, z) = unpack(key);
-    [x as f32 * resolution, y as f32 * resolution, z as f32 * resolution]
+    cube_corner([x, y, z], resolution)
 }
 
 /// Index of the voxel with `key`, if occupied.
@@ -541,7 +551,8 @@ fn add_point(
     last: &mut LastVoxel,
     stats: &mut VoxelStats,
 ) -> Option<usize> {
-    let Some(key) = voxel_key(p.xyz, r, slot) else {
+    let cube = voxel_cube(p.xyz, r);
+    let Some(key) = pack(cube[0], cube[1], cube[2], slot) else {
         stats.dropped_points += 1;
         return None;
     };
@@ -554,7 +565,8 @@ fn add_point(
         stats.dropped_points += 1;
         return index;
     }
-    let corner = key_corner(key, r);
+    // The cube's corner from the coordinates the key was packed from, not unpacked from the key again.
+    let corner = cube_corner(cube, r);
     v.count += 1;
     v.mean = linalg::add(v.mean, linalg::sub(p.xyz, corner));
     v.add_colour(p.rgb);
