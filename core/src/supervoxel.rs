@@ -901,6 +901,9 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         let dn = 1.0 - linalg::dot(nv, sv.normal);
         Some(w_c * linalg::dot(dc, dc) + w_s * linalg::dot(ds, ds) + w_n * dn * dn)
     };
+    // A frontier voxel's neighbours, `around[..k]`: one array for all of them (cleared for each, it was a
+    // `memclr` call per voxel).
+    let mut around = [0u16; 26];
     for round in 2..=max_rounds.saturating_add(1) {
         // Pass A: every untouched neighbour of last round's voxels (the frontier) is a candidate of this round,
         // and takes the nearest (VCCS distance; ties: lower index) of the supervoxels of those voxels around it,
@@ -914,7 +917,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             }
             let Some(v) = voxels.get(i) else { continue };
             let (key, label) = (v.key, v.supervoxel);
-            let (mut around, mut k) = ([0u16; 26], 0);
+            let mut k = 0;
             let mut keep = |j: usize| {
                 if let Some(a) = around.get_mut(k) {
                     *a = j as u16;
