@@ -248,6 +248,14 @@ const NEIGHBOURS: [([i32; 3], i32); 26] = {
     out
 };
 
+/// Whether the cube (x, y, z) lies inside the key range with a margin of one: then every neighbour's key is its
+/// key plus the fixed offset of [`NEIGHBOURS`].
+#[inline(always)]
+fn inside_key_range(x: i32, y: i32, z: i32) -> bool {
+    let h = VOXEL_GRID_HALF_EXTENT;
+    -h < x && x < h && -h < y && y < h && 0 < z && z < h
+}
+
 /// Every direction of [`NEIGHBOURS`] as a bit set: bit d for direction d.
 pub const ALL_DIRECTIONS: u32 = (1 << 26) - 1;
 
@@ -262,15 +270,13 @@ pub fn for_each_neighbour(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl
 #[inline(always)]
 fn for_each_neighbour_towards(voxels: &[Voxel], slots: &[u16], key: u32, mut f: impl FnMut(u32, usize)) {
     let (x, y, z) = unpack(key);
-    let h = VOXEL_GRID_HALF_EXTENT;
     let mut visit = |bit: u32, k: u32| {
         if let Some(j) = find_voxel(voxels, slots, k) {
             f(bit, j);
         }
     };
     let mut bit = 1u32;
-    if -h < x && x < h && -h < y && y < h && 0 < z && z < h {
-        // Inside the key range with a margin of one: every neighbour key is the key plus a fixed offset.
+    if inside_key_range(x, y, z) {
         for &(_, delta) in &NEIGHBOURS {
             visit(bit, key.wrapping_add_signed(delta));
             bit <<= 1;
@@ -292,8 +298,7 @@ fn for_each_neighbour_towards(voxels: &[Voxel], slots: &[u16], key: u32, mut f: 
 #[inline]
 fn for_each_neighbour_among(voxels: &[Voxel], slots: &[u16], key: u32, directions: u32, mut f: impl FnMut(usize)) {
     let (x, y, z) = unpack(key);
-    let h = VOXEL_GRID_HALF_EXTENT;
-    let inside = -h < x && x < h && -h < y && y < h && 0 < z && z < h;
+    let inside = inside_key_range(x, y, z);
     let mut bits = directions & ALL_DIRECTIONS;
     while bits != 0 {
         let d = bits.trailing_zeros() as usize;
@@ -644,8 +649,7 @@ impl VoxelLinks {
 fn neighbour_key(key: u32, d: usize) -> Option<u32> {
     let &([dx, dy, dz], delta) = NEIGHBOURS.get(d)?;
     let (x, y, z) = unpack(key);
-    let h = VOXEL_GRID_HALF_EXTENT;
-    if -h < x && x < h && -h < y && y < h && 0 < z && z < h {
+    if inside_key_range(x, y, z) {
         Some(key.wrapping_add_signed(delta))
     } else {
         pack(x + dx, y + dy, z + dz, key_slot(key))
