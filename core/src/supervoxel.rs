@@ -257,7 +257,7 @@ fn inside_key_range(x: i32, y: i32, z: i32) -> bool {
 }
 
 /// Every direction of [`NEIGHBOURS`] as a bit set: bit d for direction d.
-pub const ALL_DIRECTIONS: u32 = (1 << 26) - 1;
+const ALL_DIRECTIONS: u32 = (1 << 26) - 1;
 
 /// Calls `f(j)` for each occupied voxel j among the 26 neighbours of the voxel with `key` (in its mask slot).
 #[inline]
