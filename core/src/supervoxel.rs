@@ -303,6 +303,8 @@ fn for_each_neighbour_among(voxels: &[Voxel], slots: &[u16], key: u32, direction
     while bits != 0 {
         let d = bits.trailing_zeros() as usize;
         bits &= bits - 1;
+        // `neighbour_key`'s key, with the cube and its range test worked out once per voxel (through a shared
+        // helper taking them, the Cortex-M7's growth took 0.06 M instructions more per frame).
         let Some(&([dx, dy, dz], delta)) = NEIGHBOURS.get(d) else { continue };
         let k = if inside { Some(key.wrapping_add_signed(delta)) } else { pack(x + dx, y + dy, z + dz, key_slot(key)) };
         if let Some(j) = k.and_then(|k| find_voxel(voxels, slots, k)) {
@@ -814,6 +816,23 @@ const FRONTIER: u16 = 2;
 const CLAIMED: u16 = 3;
 /// The bits of the growth state.
 const GROWTH_STATE: u16 = 3;
+/// Where a growth scratch entry keeps the upper 10 of its voxel's occupied directions (above the state).
+const DIRECTIONS_AT: u16 = 2;
+
+/// A voxel's scratch entry at the start of growth without links: state [`UNTOUCHED`], and the directions 16–25
+/// the normals kept ([`occupied_directions`]), whose `supervoxel` field growth takes over.
+#[inline]
+fn growth_entry(v: &Voxel) -> u16 {
+    ((occupied_directions(v) >> 16) as u16) << DIRECTIONS_AT
+}
+
+/// The occupied directions of a voxel during growth without links: bits 0–15 still in its `gaussian` field, 16–25
+/// in its scratch entry `st` ([`growth_entry`]).
+#[inline]
+fn growth_directions(v: &Voxel, st: u16) -> u32 {
+    v.gaussian as u32 | ((st >> DIRECTIONS_AT) as u32) << 16
+}
+
 /// Most growth rounds, whatever the resolutions.
 const MAX_GROWTH_ROUNDS: u16 = 0x7ffe;
 
@@ -852,7 +871,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
     // directions (the lower 16 stay in its `gaussian` field, which growth does not use).
     for (i, v) in voxels.iter_mut().enumerate() {
         if let Some(st) = scratch.get_mut(i) {
-            *st = if LINKED { UNTOUCHED } else { ((occupied_directions(v) >> 16) as u16) << 2 };
+            *st = if LINKED { UNTOUCHED } else { growth_entry(v) };
         }
         v.supervoxel = UNLABELLED;
     }
@@ -931,8 +950,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             if LINKED {
                 for_each_linked_neighbour::<true>(voxels, slots, links, i, key, keep);
             } else {
-                let occupied = v.gaussian as u32 | ((st >> 2) as u32) << 16;
-                for_each_neighbour_among(voxels, slots, key, occupied, &mut keep);
+                for_each_neighbour_among(voxels, slots, key, growth_directions(v, st), &mut keep);
             }
             if let Some(s) = scratch.get_mut(i) {
                 set_state(s, CLAIMED);
