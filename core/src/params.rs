@@ -122,6 +122,15 @@ pub struct Params {
     pub sample_rate: f32,
     /// Seed of the sampling hash; the same seed gives the same sample on every machine.
     pub sample_seed: u32,
+    /// Draw a new sample for every frame (paper: "randomly sampled"): the hash's pixel index is offset by a hash
+    /// of the frame counter ([`Params::sample_frame`]), so each frame keeps other pixels, identically on every
+    /// machine. `false`: every frame keeps the same pixels. The first frame's sample is the same either way.
+    pub sample_per_frame: bool,
+    /// The frame whose sample the passes draw: the number of frames mapped before it. Set by the mapper at the
+    /// start of every frame (and kept after it, so that the frame's points can be visited again); not read
+    /// from a configuration.
+    #[serde(skip)]
+    pub sample_frame: u32,
 
     // --- 2. supervoxels (VCCS) ---------------------------------------------------------------------------
     /// Voxel edge R_voxel, metres (paper: 0.03).
@@ -290,6 +299,8 @@ impl Default for Params {
             depth_max: 3.0,
             sample_rate: DEFAULT_SAMPLE_RATE,
             sample_seed: DEFAULT_SAMPLE_SEED,
+            sample_per_frame: true,
+            sample_frame: 0,
             voxel_resolution: 0.03,
             seed_resolution: 0.65,
             color_importance: 0.2,

@@ -1,11 +1,14 @@
 //! Stage 1: the observed point set P — depth range filter and the seeded 15 % sample (paper §VI).
 //!
-//! The sample is a pure function of (pixel index, seed): a pixel is kept when a 32-bit hash of its index falls
-//! below `sample_rate × 2³²`. No state is kept, so any later stage can visit exactly the same points again by
-//! re-reading the caller's depth buffer, and the result is the same on every machine. For the default seed and
-//! rate the sample of a 640 × 480 frame is also a table of bits made at compile time ([`SAMPLE_TABLE_PIXELS`]),
-//! which the Cortex-M7's passes read instead of hashing each pixel; the host hashes 32 pixels at a time in
-//! vector registers.
+//! The sample is a pure function of (pixel index, frame counter, seed): a pixel is kept when a 32-bit hash of
+//! its sample index falls below `sample_rate × 2³²`. The sample index is the pixel index plus an offset drawn
+//! from the frame counter ([`Params::sample_frame`]), wrapped into the frame's pixels, so every frame keeps other
+//! pixels (the paper's "randomly sampled"; [`Params::sample_per_frame`]) and the first frame's offset is 0. No
+//! state is kept, so any later stage can visit exactly the same points again by re-reading the caller's depth
+//! buffer, and the result is the same on every machine. For the default seed and rate the sample of a frame of
+//! up to 640 × 480 pixels is also a table of bits made at compile time ([`SAMPLE_TABLE_PIXELS`]), which the
+//! Cortex-M7's passes read from the frame's offset on instead of hashing each pixel; the host hashes 32 pixels
+//! at a time in vector registers.
 
 use crate::frame::Frame;
 use crate::linalg::Vec3;
@@ -67,7 +70,8 @@ pub const fn sample_threshold(rate: f32) -> u64 {
     }
 }
 
-/// Whether pixel index `i` is in the sample for `seed` and `threshold`.
+/// Whether sample index `i` is in the sample for `seed` and `threshold` (a frame's pixel index `i` is sample
+/// index `i` when its offset is 0: the first frame, or without [`Params::sample_per_frame`]).
 #[inline]
 pub fn is_sampled(i: u32, seed: u32, threshold: u64) -> bool {
     Sampler::with(seed, threshold).keeps(i)
@@ -95,7 +99,7 @@ const BLOCK_BITS: [u32; BLOCK] = {
 };
 
 /// The sampling predicate for one seed and threshold, with the seed mixed once and 32-bit compares only (the
-/// per-pixel loop vectorises them).
+/// per-pixel loop vectorises them), and one frame's offset of the sample index.
 #[derive(Debug, Clone, Copy)]
 struct Sampler {
     mixed_seed: u32,
@@ -103,19 +107,64 @@ struct Sampler {
     below: u32,
     /// The threshold is 2³²: every pixel is kept.
     all: bool,
+    /// Added to a pixel index to give its sample index, below `pixels`.
+    offset: u32,
+    /// Pixels of the frame: sample indices wrap at it.
+    pixels: u32,
 }
 
 impl Sampler {
+    /// The sample of `seed` and `threshold` without an offset (sample index = pixel index).
     const fn with(seed: u32, threshold: u64) -> Self {
         let all = threshold > u32::MAX as u64;
         let below = if all { u32::MAX } else { threshold as u32 };
-        Sampler { mixed_seed: mix32(seed), below, all }
+        Sampler { mixed_seed: mix32(seed), below, all, offset: 0, pixels: u32::MAX }
     }
 
-    /// Whether pixel index `i` is kept: `mix32(i ^ mix32(seed)) < threshold`.
+    /// The sample `params` draw for `frame`: the offset is 32 · (`mix32(sample_frame)` mod ⌊pixels / 32⌋) (0 for
+    /// the first frame, since `mix32(0) = 0`), or 0 without [`Params::sample_per_frame`]. A multiple of 32, so that
+    /// a row starting on a table word (640 pixels wide) reads each block's bits in one load.
+    fn of_frame(frame: &Frame<'_>, params: &Params) -> Self {
+        let pixels = frame.pixels().min(u32::MAX as usize / 2) as u32;
+        let words = (pixels / 32).max(1);
+        let offset = if params.sample_per_frame { mix32(params.sample_frame) % words * 32 } else { 0 };
+        Sampler { offset, pixels, ..Sampler::with(params.sample_seed, sample_threshold(params.sample_rate)) }
+    }
+
+    /// The sample index of pixel index `i` (below `pixels`): `i + offset`, wrapped into `0..pixels`.
     #[inline]
-    const fn keeps(&self, i: u32) -> bool {
-        (mix32(i ^ self.mixed_seed) < self.below) | self.all
+    fn index(&self, i: u32) -> u32 {
+        self.wrap(i.wrapping_add(self.offset))
+    }
+
+    /// `s` wrapped into `0..pixels`, for `s < 2 · pixels` (branch-free, so that a block's loop vectorises).
+    #[inline(always)]
+    fn wrap(&self, s: u32) -> u32 {
+        s - if s >= self.pixels { self.pixels } else { 0 }
+    }
+
+    /// Whether sample index `s` is kept: `mix32(s ^ mix32(seed)) < threshold`.
+    #[inline]
+    const fn keeps(&self, s: u32) -> bool {
+        (mix32(s ^ self.mixed_seed) < self.below) | self.all
+    }
+
+    /// Whether every sample index of the frame lies in [`DEFAULT_SAMPLE`] and this is its sample.
+    fn in_table(&self) -> bool {
+        self.is_default() && self.pixels as usize <= SAMPLE_TABLE_PIXELS
+    }
+
+    /// The keep bits of the 32 sample indices from `s` (below `pixels`), wrapping at `pixels`, from
+    /// [`DEFAULT_SAMPLE`] ([`Sampler::in_table`]).
+    #[inline]
+    fn table_word(&self, s: u32) -> u32 {
+        let word = default_sample_word(s as usize).unwrap_or(0);
+        let left = self.pixels.saturating_sub(s);
+        if left >= 32 {
+            return word;
+        }
+        let wrapped = default_sample_word(0).unwrap_or(0);
+        (word & ((1u32 << left) - 1)) | (wrapped << (left & 31))
     }
 
     /// Whether this is the sampler of the default seed and rate, whose sample [`DEFAULT_SAMPLE`] holds.
@@ -224,13 +273,13 @@ pub fn for_each_position_in(frame: &Frame<'_>, params: &Params, window: PixelWin
 /// [`for_each_point_in`]; `COLOUR`: read each point's colour.
 #[inline(always)]
 fn walk_window<const COLOUR: bool>(frame: &Frame<'_>, params: &Params, window: PixelWindow, f: impl FnMut(&Point)) {
-    let sampler = Sampler::with(params.sample_seed, sample_threshold(params.sample_rate));
+    let sampler = Sampler::of_frame(frame, params);
     // Where the keep test vectorises, hashing every pixel is as cheap as the table (measured: the table was
     // 1–3 % slower on the host); elsewhere (the Cortex-M7) the table of the default sample saves the hash of
     // every pixel with a valid depth (about 15 M instructions per cabinet frame).
     let walk = if BLOCKWISE {
         Walk::Blocks
-    } else if sampler.is_default() {
+    } else if sampler.in_table() {
         Walk::Table
     } else {
         Walk::Pixels
@@ -244,7 +293,8 @@ enum Walk {
     /// The keep test of [`BLOCK`] pixels at a time computed without a branch into a bit mask, then its set bits.
     Blocks,
     /// The keep bits of [`BLOCK`] pixels at a time read from [`DEFAULT_SAMPLE`] (the default sample only), then
-    /// the range test of the kept pixels; a row the table does not cover goes [`Walk::Pixels`].
+    /// the range test of the kept pixels; a frame the table does not cover ([`Sampler::in_table`]) goes
+    /// [`Walk::Pixels`].
     Table,
     /// A branch per pixel: the range test, then the hash of a pixel in range.
     Pixels,
@@ -271,15 +321,14 @@ fn walk_points<const COLOUR: bool>(
     let rows = frame.depth.chunks_exact(w).zip(rgb_rows).enumerate();
     let first_row = window.v0 as usize;
     let n_rows = (window.v1 as usize + 1).saturating_sub(first_row);
+    let walk = if walk == Walk::Table && !sampler.in_table() { Walk::Pixels } else { walk };
     for (v, (row, rgb_row)) in rows.skip(first_row).take(n_rows) {
         let mut emit = |u: usize| emit_point::<COLOUR>(frame, row, rgb_row, u, v, &mut f);
         let span = row.get(u0..=u1).unwrap_or(&[]);
-        // The table covers the row when it covers its last block (then it covers each of them).
-        let last_block = v * w + u0 + BLOCK * (span.len().saturating_sub(1) / BLOCK);
-        if walk == Walk::Table && default_sample_word(last_block).is_some() {
+        if walk == Walk::Table {
             for (b, block) in span.chunks(BLOCK).enumerate() {
                 let first = u0 + b * BLOCK;
-                let word = default_sample_word(v * w + first).unwrap_or(0);
+                let word = sampler.table_word(sampler.index((v * w + first) as u32));
                 let mut mask = word & (u32::MAX >> (BLOCK - block.len()));
                 while mask != 0 {
                     let j = mask.trailing_zeros() as usize;
@@ -292,10 +341,10 @@ fn walk_points<const COLOUR: bool>(
         } else if walk == Walk::Blocks {
             for (b, block) in span.chunks(BLOCK).enumerate() {
                 let first = u0 + b * BLOCK;
-                let base = (v * w + first) as u32;
+                let base = sampler.index((v * w + first) as u32);
                 let mut mask = 0u32;
                 for ((&raw, &bit), j) in block.iter().zip(&BLOCK_BITS).zip(0u32..) {
-                    let keep = (raw >= lo) & (raw <= hi) & sampler.keeps(base + j);
+                    let keep = (raw >= lo) & (raw <= hi) & sampler.keeps(sampler.wrap(base + j));
                     mask |= bit & (keep as u32).wrapping_neg();
                 }
                 while mask != 0 {
@@ -305,9 +354,9 @@ fn walk_points<const COLOUR: bool>(
                 }
             }
         } else {
-            let base = (v * w + u0) as u32;
+            let base = sampler.index((v * w + u0) as u32);
             for (j, &raw) in span.iter().enumerate() {
-                if raw >= lo && raw <= hi && sampler.keeps(base + j as u32) {
+                if raw >= lo && raw <= hi && sampler.keeps(sampler.wrap(base + j as u32)) {
                     emit(u0 + j);
                 }
             }
@@ -449,38 +498,54 @@ mod tests {
         assert!((rate - 0.15).abs() < 0.003, "rate {rate}");
     }
 
-    /// The three ways of finding the kept pixels give the same points in the same order, with the default sample
-    /// and another, over windows of a frame larger than the table (its last rows go pixel by pixel).
-    #[test]
-    fn every_walk_visits_the_same_points() {
-        extern crate std;
-        use std::vec::Vec;
-        const W: usize = 643;
-        const H: usize = 481;
-        let depth: Vec<u16> = (0..W * H)
-            .map(|i| match (i * 7 + i / W) % 13 {
+    /// A `w × h` frame's depths (millimetres) with holes and out-of-range values.
+    fn patterned_depth(w: usize, h: usize) -> std::vec::Vec<u16> {
+        (0..w * h)
+            .map(|i| match (i * 7 + i / w) % 13 {
                 3 | 4 => 0,
                 7 => 9000,
                 k => 500 + (i % 97) as u16 * 20 + k as u16,
             })
-            .collect();
-        let colour = std::vec![9u8; W * H * 3];
-        let frame = test_frame(
-            (W, H),
-            &depth,
-            &colour,
-            crate::frame::Intrinsics { fx: 500.0, fy: 500.0, cx: 321.0, cy: 240.0 },
-        );
+            .collect()
+    }
+
+    extern crate std;
+
+    /// The three ways of finding the kept pixels give the same points in the same order, with the default sample
+    /// and another, for the first frame and later ones (other offsets), over windows of a frame larger than the
+    /// table (the table's walk goes pixel by pixel there) and of one smaller (whose sample indices wrap at its
+    /// own pixel count, inside the table).
+    #[test]
+    fn every_walk_visits_the_same_points() {
+        for (w, h) in [(643usize, 481usize), (600, 397)] {
+            let depth = patterned_depth(w, h);
+            let colour = std::vec![9u8; w * h * 3];
+            let frame = test_frame(
+                (w, h),
+                &depth,
+                &colour,
+                crate::frame::Intrinsics { fx: 500.0, fy: 500.0, cx: 321.0, cy: 240.0 },
+            );
+            every_walk_visits_the_same_points_of(&frame);
+        }
+    }
+
+    fn every_walk_visits_the_same_points_of(frame: &Frame<'_>) {
+        use std::vec::Vec;
+        let (w, h) = (frame.width, frame.height);
         let windows = [
             PixelWindow::WHOLE,
             PixelWindow { u0: 5, v0: 2, u1: 40, v1: 17 },
-            PixelWindow { u0: 31, v0: 470, u1: 642, v1: 480 },
-            PixelWindow { u0: 600, v0: 476, u1: 700, v1: 900 },
-            PixelWindow { u0: 0, v0: 477, u1: 0, v1: 477 },
+            PixelWindow { u0: 31, v0: h - 11, u1: w - 1, v1: h - 1 },
+            PixelWindow { u0: w - 43, v0: h - 5, u1: 700, v1: 900 },
+            PixelWindow { u0: 0, v0: h - 4, u1: 0, v1: h - 4 },
             PixelWindow::EMPTY,
         ];
-        for params in [Params::default(), Params { sample_seed: 7, ..Params::default() }] {
-            let sampler = Sampler::with(params.sample_seed, sample_threshold(params.sample_rate));
+        let seeds = [Params::default().sample_seed, 7];
+        for (seed, sample_frame) in seeds.into_iter().flat_map(|s| [(s, 0), (s, 1), (s, 57)]) {
+            let params = Params { sample_seed: seed, sample_frame, ..Params::default() };
+            let sampler = Sampler::of_frame(frame, &params);
+            assert_eq!(sampler.offset == 0, sample_frame == 0);
             let walks: &[Walk] = if sampler.is_default() {
                 &[Walk::Blocks, Walk::Table, Walk::Pixels]
             } else {
@@ -489,7 +554,7 @@ mod tests {
             for window in windows {
                 let points = |walk: Walk| {
                     let mut out = Vec::new();
-                    walk_points::<true>(&frame, &params, window, sampler, walk, |p| {
+                    walk_points::<true>(frame, &params, window, sampler, walk, |p| {
                         out.push((p.u, p.v, p.xyz.map(f32::to_bits)))
                     });
                     out
@@ -497,18 +562,57 @@ mod tests {
                 let blocks = points(Walk::Blocks);
                 // Without the colours: the same points, each with rgb [0, 0, 0].
                 let mut positions = Vec::new();
-                for_each_position_in(&frame, &params, window, |p| {
+                for_each_position_in(frame, &params, window, |p| {
                     assert_eq!(p.rgb, [0; 3]);
                     positions.push((p.u, p.v, p.xyz.map(f32::to_bits)));
                 });
                 assert_eq!(positions, blocks, "positions over {window:?}");
                 if window == PixelWindow::WHOLE {
-                    assert!(blocks.len() > 30_000 && blocks.iter().any(|p| (p.1 as usize) * W >= SAMPLE_TABLE_PIXELS));
+                    assert!(blocks.len() > 25_000, "{} points", blocks.len());
                 }
                 for &walk in walks {
-                    assert_eq!(points(walk), blocks, "{walk:?} over {window:?}, seed {}", params.sample_seed);
+                    assert_eq!(points(walk), blocks, "{walk:?} over {window:?}, seed {seed}, frame {sample_frame}");
                 }
             }
         }
+    }
+
+    /// Frame f keeps pixel i exactly when the hash keeps sample index (i + 32 · (mix32(f) mod ⌊pixels / 32⌋)) mod
+    /// pixels: the first
+    /// frame's sample is the fixed one, each later frame keeps other pixels at the same rate, and without
+    /// `sample_per_frame` every frame keeps the first frame's.
+    #[test]
+    fn each_frame_draws_its_own_sample() {
+        use std::vec::Vec;
+        let (w, h) = (160usize, 90usize);
+        let depth = std::vec![1500u16; w * h];
+        let colour = std::vec![0u8; w * h * 3];
+        let frame =
+            test_frame((w, h), &depth, &colour, crate::frame::Intrinsics { fx: 100.0, fy: 100.0, cx: 80.0, cy: 45.0 });
+        let kept = |params: &Params| {
+            let mut out = Vec::new();
+            for_each_point(&frame, params, |p| out.push(p.v as usize * w + p.u as usize));
+            out
+        };
+        let t = sample_threshold(DEFAULT_SAMPLE_RATE);
+        let fixed: Vec<usize> = (0..w * h).filter(|&i| is_sampled(i as u32, DEFAULT_SAMPLE_SEED, t)).collect();
+        assert_eq!(kept(&Params::default()), fixed);
+        let mut samples = Vec::new();
+        for f in [1u32, 2, 3, 1000] {
+            let params = Params { sample_frame: f, ..Params::default() };
+            let offset = mix32(f) as usize % (w * h / 32) * 32;
+            let expected: Vec<usize> =
+                (0..w * h).filter(|&i| is_sampled(((i + offset) % (w * h)) as u32, DEFAULT_SAMPLE_SEED, t)).collect();
+            let got = kept(&params);
+            assert_eq!(got, expected, "frame {f}");
+            let rate = got.len() as f64 / (w * h) as f64;
+            assert!((rate - 0.15).abs() < 0.01, "frame {f}: rate {rate}");
+            let shared = got.iter().filter(|i| fixed.binary_search(i).is_ok()).count();
+            // Independent 15 % samples share about 15 % of their pixels.
+            assert!(shared * 4 < got.len(), "frame {f}: {shared} of {} pixels as the first frame's", got.len());
+            assert_eq!(kept(&Params { sample_per_frame: false, ..params }), fixed);
+            samples.push(got);
+        }
+        assert!(samples.windows(2).all(|p| p.first() != p.get(1)));
     }
 }
