@@ -24,6 +24,12 @@
 //! means, and the covariance (denominator N − 1, as the paper) and support box from a second pass over the
 //! sampled points.
 //! The work list is an explicit stack of voxel-order ranges; there is no recursion.
+//!
+//! **When the Gaussian pool runs short (drop policy).** A cluster is split only while the pool keeps room for
+//! both halves, for one Gaussian per range still on the stack and for one per supervoxel still to come; else it
+//! stays whole (a coarser Gaussian, counted as an overflow event of the pool in [`GmmStats::splits_refused`]).
+//! What a short pool loses is detail of the last supervoxels, not their points: each supervoxel keeps at least
+//! one Gaussian as long as there are no more supervoxels than the pool holds.
 
 use bytemuck::Zeroable;
 
@@ -117,6 +123,9 @@ pub struct GmmStats {
     pub splits: u32,
     /// Points whose Gaussian did not fit the pool.
     pub dropped_points: u32,
+    /// Splits not made because the pool had no room for their halves (see the module docs); each is an overflow
+    /// event of the Gaussian pool.
+    pub splits_refused: u32,
 }
 
 /// Storage the refinement stage works in.
@@ -163,15 +172,18 @@ pub fn refine(
             sv.first = sv.first.saturating_add(1);
         }
     }
+    let count = supervoxels.len();
     for (s, sv) in supervoxels.iter_mut().enumerate() {
         sv.first = sv.first.saturating_sub(sv.voxels);
         let end = sv.first.saturating_add(sv.voxels);
         let _ = stack.push(SplitTask { start: sv.first, end, depth: 0, supervoxel: s as u16 });
         // Depth-first, one supervoxel at a time, so the Gaussian order follows the supervoxel order.
+        let later = count - s - 1;
         while let Some(task) = stack.pop() {
-            process(task, voxels, order, stack, gaussians, params, &mut stats);
+            process(task, voxels, order, stack, gaussians, later, params, &mut stats);
         }
     }
+    gaussians.add_overflows(stats.splits_refused);
 
     point_statistics(frame, voxel_masks, voxels, slots, sampled, gaussians.as_mut_slice(), params);
     stats
@@ -291,6 +303,7 @@ fn process(
     order: &mut [u16],
     stack: &mut Bounded<'_, SplitTask>,
     gaussians: &mut Bounded<'_, Gaussian>,
+    later_supervoxels: usize,
     params: &Params,
     stats: &mut GmmStats,
 ) {
@@ -303,7 +316,12 @@ fn process(
     let max_thickness = params.gmm_max_thickness.max(params.gmm_noise_sigmas * params.depth_noise(m.mean()[2]));
     let compact = sigma[2] <= max_thickness && sigma[0] <= params.gmm_max_extent && !bent;
     let splittable = task.depth < params.gmm_max_depth && points >= 2 * params.gmm_min_points && range.len() >= 2;
-    if !compact && splittable {
+    // Room for both halves, a Gaussian per range still on the stack and one per supervoxel still to come.
+    let room = gaussians.len() + stack.len() + 2 + later_supervoxels <= gaussians.capacity();
+    if !compact && splittable && !room {
+        stats.splits_refused += 1;
+    }
+    if !compact && splittable && room {
         // Candidate seedings, tried in order until one gives two halves of at least `gmm_min_points`: the two
         // most different normals (a fold), the principal axis (too long), the thickness axis (two layers).
         let mean = m.mean();
@@ -453,4 +471,95 @@ fn two_means_partition(range: &mut [u16], voxels: &[Voxel], seeds: [Feature; 2],
     }
     let ok = first_points >= params.gmm_min_points && second_points >= params.gmm_min_points;
     ok.then_some(lo).filter(|&m| m > 0 && m < range.len())
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+
+    use super::*;
+    use crate::frame::Intrinsics;
+
+    /// `n` voxels, each of 10 points, 3 cm apart along x from `x0` at y = `y`, z = 1 m, facing the camera, in
+    /// supervoxel `sv`: a strip 3·n cm long, which the extent rule splits while its σ0 (length/√12) exceeds
+    /// 15 cm.
+    fn strip(voxels: &mut [Voxel], first: usize, n: usize, x0: f32, y: f32, sv: u16) {
+        for (k, v) in voxels.iter_mut().skip(first).take(n).enumerate() {
+            *v = Voxel::zeroed();
+            v.key = (first + k) as u32;
+            v.count = 10;
+            v.mean = [x0 + 0.03 * k as f32, y, 1.0];
+            v.normal = [0, 0, -32767];
+            v.supervoxel = sv;
+        }
+    }
+
+    /// Refines two 1.2 m strips (two supervoxels) into at most `capacity` Gaussians; returns the Gaussians'
+    /// supervoxels, the stats, the pool's overflow events and whether every voxel got a Gaussian.
+    fn refine_strips(capacity: usize) -> (std::vec::Vec<u16>, GmmStats, u32, bool) {
+        const N: usize = 40;
+        let mut voxels = [Voxel::zeroed(); 2 * N];
+        strip(&mut voxels, 0, N, -0.6, 0.0, 0);
+        strip(&mut voxels, N, N, -0.6, 0.3, 1);
+        let mut supervoxels = [Supervoxel::zeroed(); 2];
+        for sv in &mut supervoxels {
+            sv.voxels = N as u16;
+        }
+        let mut order = [0u16; 2 * N];
+        let mut tasks = [SplitTask::zeroed(); 64];
+        let mut stack = Bounded::new(&mut tasks);
+        let mut store = std::vec![Gaussian::zeroed(); capacity];
+        let mut gaussians = Bounded::new(&mut store);
+        let frame = Frame {
+            width: 1,
+            height: 1,
+            depth: &[0],
+            depth_scale: 1000.0,
+            colour: &[0, 0, 0],
+            intrinsics: Intrinsics { fx: 500.0, fy: 500.0, cx: 0.5, cy: 0.5 },
+            pose: None,
+        };
+        let stats = refine(
+            GmmPools {
+                voxels: &mut voxels,
+                slots: &[],
+                sampled: Some(&[]),
+                order: &mut order,
+                supervoxels: &mut supervoxels,
+                stack: &mut stack,
+                gaussians: &mut gaussians,
+            },
+            &frame,
+            None,
+            &Params::default(),
+        );
+        let owners = gaussians.as_slice().iter().map(|g| g.supervoxel).collect();
+        let labelled = voxels.iter().all(|v| (v.gaussian as usize) < gaussians.len());
+        (owners, stats, gaussians.usage().overflow_events, labelled)
+    }
+
+    /// With room, each strip splits into four 30 cm pieces (1.2 m → 0.6 m, σ0 17 cm → 0.3 m, σ0 8.7 cm); with
+    /// a pool of 3, the first strip keeps room for the second: 2 + 1 Gaussians, no point dropped, every refused
+    /// split an overflow event.
+    #[test]
+    fn a_short_gaussian_pool_coarsens_the_last_clusters_instead_of_dropping_them() {
+        let (owners, stats, overflows, labelled) = refine_strips(64);
+        let per_strip = owners.iter().filter(|&&s| s == 0).count();
+        assert_eq!(per_strip, 4, "a 1.2 m strip in 30 cm pieces");
+        assert_eq!(owners.iter().filter(|&&s| s == 1).count(), per_strip);
+        assert_eq!((stats.dropped_points, stats.splits_refused, overflows), (0, 0, 0));
+        assert!(labelled);
+
+        let (owners, stats, overflows, labelled) = refine_strips(3);
+        assert_eq!(owners, [0, 0, 1]);
+        assert_eq!(stats.dropped_points, 0);
+        assert_eq!(stats.splits_refused, 3, "both halves of the first strip and the whole second one");
+        assert_eq!(overflows, stats.splits_refused);
+        assert!(labelled, "every voxel has a Gaussian");
+
+        // One Gaussian per supervoxel is the least: a pool of 1 drops the second strip's 400 points.
+        let (owners, stats, _, _) = refine_strips(1);
+        assert_eq!(owners, [0]);
+        assert_eq!(stats.dropped_points, 400);
+    }
 }
