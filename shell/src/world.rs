@@ -170,6 +170,9 @@ pub struct WorldSummary {
     pub r2g_rmse_m: Option<f64>,
     /// G2R of the planes', superquadrics' and Gaussians' samples alone, metres.
     pub g2r_by_kind_m: [Option<f64>; 3],
+    /// The samples G2R is taken over, by kind (planes, superquadrics, Gaussians): with `g2r_by_kind_m`, each
+    /// kind's share of the squared error.
+    pub g2r_samples_by_kind: [usize; 3],
     /// Observed points in the union.
     pub observed_points: usize,
     /// World reconstruction samples.
@@ -377,6 +380,7 @@ impl<'s> WorldRun<'s> {
                 let own: Vec<[f32; 3]> = seen.iter().filter(|s| s.0 == k).map(|s| s.1).collect();
                 crate::eval::rms_nearest(&own, &observed)
             }),
+            g2r_samples_by_kind: [0u8, 1, 2].map(|k| seen.iter().filter(|s| s.0 == k).count()),
             observed_points: observed.len(),
             world_samples: samples.len(),
             receiver_identical,
