@@ -402,6 +402,8 @@ fn emit_point<const COLOUR: bool>(
 
 #[cfg(test)]
 mod tests {
+    extern crate std;
+
     use super::*;
 
     /// A `w × h` frame of millimetre depths without a pose.
@@ -523,8 +525,6 @@ mod tests {
             .collect()
     }
 
-    extern crate std;
-
     /// The three ways of finding the kept pixels give the same points in the same order, with the default sample
     /// and another, for the first frame and later ones (other offsets), over windows of a frame larger than the
     /// table (the table's walk goes pixel by pixel there) and of one smaller (whose sample indices wrap at its
@@ -592,8 +592,7 @@ mod tests {
     }
 
     /// Frame f keeps pixel i exactly when the hash keeps sample index (i + 32 · (mix32(f) mod ⌊pixels / 32⌋)) mod
-    /// pixels: the first
-    /// frame's sample is the fixed one, each later frame keeps other pixels at the same rate, and without
+    /// pixels: the first frame's sample is the fixed one, each later frame keeps other pixels at the same rate, and without
     /// `sample_per_frame` every frame keeps the first frame's.
     #[test]
     fn each_frame_draws_its_own_sample() {

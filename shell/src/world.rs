@@ -355,6 +355,8 @@ impl<'s> WorldRun<'s> {
         crate::export::write_ply(&self.dir.join("world.ply"), &vertices)?;
         let samples: Vec<[f32; 3]> = vertices.iter().map(|v| v.xyz.map(|x| x as f32)).collect();
         let seen = seen_samples(&self.world, &self.cameras);
+        let seen_by_kind: [Vec<[f32; 3]>; 3] =
+            [0u8, 1, 2].map(|k| seen.iter().filter(|s| s.0 == k).map(|s| s.1).collect());
         let observed: Vec<[f32; 3]> = {
             let mut v: Vec<([i32; 3], [f32; 3])> = self.observed.iter().map(|(k, p)| (*k, *p)).collect();
             v.sort_by_key(|(k, _)| *k);
@@ -376,11 +378,8 @@ impl<'s> WorldRun<'s> {
             delta_to_frame_map: if frame_mean > 0.0 { delta_mean / frame_mean } else { 0.0 },
             g2r_rmse_m: crate::eval::rms_nearest(&seen.iter().map(|s| s.1).collect::<Vec<_>>(), &observed),
             r2g_rmse_m: crate::eval::rms_nearest(&observed, &samples),
-            g2r_by_kind_m: [0u8, 1, 2].map(|k| {
-                let own: Vec<[f32; 3]> = seen.iter().filter(|s| s.0 == k).map(|s| s.1).collect();
-                crate::eval::rms_nearest(&own, &observed)
-            }),
-            g2r_samples_by_kind: [0u8, 1, 2].map(|k| seen.iter().filter(|s| s.0 == k).count()),
+            g2r_by_kind_m: seen_by_kind.each_ref().map(|own| crate::eval::rms_nearest(own, &observed)),
+            g2r_samples_by_kind: seen_by_kind.each_ref().map(Vec::len),
             observed_points: observed.len(),
             world_samples: samples.len(),
             receiver_identical,
