@@ -488,7 +488,16 @@ pub fn cut_along_masks(
         g.owner = 0;
     }
     if made > 0 {
-        gmm::recompute_statistics(frame, voxels, scratch, gaussians.as_mut_slice(), params);
+        gmm::recompute_statistics(
+            frame,
+            voxel_masks,
+            voxels,
+            slots,
+            sampled,
+            scratch,
+            gaussians.as_mut_slice(),
+            params,
+        );
     }
     made
 }

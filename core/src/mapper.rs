@@ -457,15 +457,19 @@ impl<'s> Mapper<'s> {
 
     /// Stage 3: IH-GMM refinement (third step of [`Mapper::process`]).
     pub fn stage_gaussians(&mut self, checked: &CheckedFrame<'_>) {
+        let voxel_masks = self.voxel_masks(checked);
         let stats = gmm::refine(
             GmmPools {
                 voxels: self.voxels.as_mut_slice(),
+                slots: self.slots,
+                sampled: listed(&self.sampled, self.sampled_complete),
                 order: self.scratch,
                 supervoxels: self.supervoxels.as_mut_slice(),
                 stack: &mut self.stack,
                 gaussians: &mut self.gaussians,
             },
             &checked.frame,
+            voxel_masks.as_ref(),
             &self.params,
         );
         self.report.splits = stats.splits;
@@ -658,21 +662,16 @@ impl<'s> Mapper<'s> {
             for (slot, o) in mask_slot.iter_mut().zip(objects.get(first..last).unwrap_or(&[])) {
                 *slot = masks.and_then(|m| m.instances.iter().position(|i| i.id == o.instance));
             }
-            // Each object's pixel box from the points the pass visits (its Gaussians' boxes, modelled from their
-            // voxels, hold them; the free-space probes look at the pixels of this tighter one).
-            let mut seen = [[u16::MAX, u16::MAX, 0, 0]; MAX_OBJECTS_PER_PASS];
             let sample = |p: &Point, v: Option<(usize, &Voxel)>| {
                 let Some(g) = v.and_then(|(_, v)| gaussians.get(v.gaussian as usize)) else { return };
                 let k = g.owner as usize;
                 if g.role != ROLE_OBJECT || k < first || k >= last || !eligible(k) {
                     return;
                 }
-                let (Some(o), Some(c), Some(t), Some(b)) =
-                    (objects.get(k), phase.get_mut(k - first), taken.get_mut(k - first), seen.get_mut(k - first))
+                let (Some(o), Some(c), Some(t)) = (objects.get(k), phase.get_mut(k - first), taken.get_mut(k - first))
                 else {
                     return;
                 };
-                *b = [b[0].min(p.u), b[1].min(p.v), b[2].max(p.u), b[3].max(p.v)];
                 // Evenly spaced over the object's points in pixel order: exactly min(samples, N) of them, the c-th
                 // point taken when ⌊(c + 1)·s / N⌋ > ⌊c·s / N⌋. `c` holds the phase (c·s) mod N, so the test is
                 // phase + s ≥ N, without a division (a library call on the Cortex-M7).
@@ -711,11 +710,6 @@ impl<'s> Mapper<'s> {
                     window,
                     sample,
                 );
-            }
-            for (k, b) in (first..last).zip(seen) {
-                if let Some(o) = self.objects.get_mut(k).filter(|_| b[0] <= b[2]) {
-                    o.pixel_bbox = b;
-                }
             }
             for k in first..last {
                 let n = taken.get(k - first).copied().unwrap_or(0);
