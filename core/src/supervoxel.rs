@@ -295,8 +295,15 @@ fn for_each_neighbour_towards(voxels: &[Voxel], slots: &[u16], key: u32, mut f: 
 /// [`for_each_neighbour`] over the directions set in `directions` only (bit d for direction d), in the same
 /// order: growth's walk through the hash, given the directions in which the normals found a neighbour, so that
 /// the empty ones (57 % of them on cabinet frames) are not looked up again.
+/// `f(d, j)` gets the direction d of each neighbour j too.
 #[inline]
-fn for_each_neighbour_among(voxels: &[Voxel], slots: &[u16], key: u32, directions: u32, mut f: impl FnMut(usize)) {
+fn for_each_neighbour_among(
+    voxels: &[Voxel],
+    slots: &[u16],
+    key: u32,
+    directions: u32,
+    mut f: impl FnMut(usize, usize),
+) {
     let (x, y, z) = unpack(key);
     let inside = inside_key_range(x, y, z);
     let mut bits = directions & ALL_DIRECTIONS;
@@ -308,7 +315,7 @@ fn for_each_neighbour_among(voxels: &[Voxel], slots: &[u16], key: u32, direction
         let Some(&([dx, dy, dz], delta)) = NEIGHBOURS.get(d) else { continue };
         let k = if inside { Some(key.wrapping_add_signed(delta)) } else { pack(x + dx, y + dy, z + dz, key_slot(key)) };
         if let Some(j) = k.and_then(|k| find_voxel(voxels, slots, k)) {
-            f(j);
+            f(d, j);
         }
     }
 }
@@ -833,6 +840,18 @@ fn growth_directions(v: &Voxel, st: u16) -> u32 {
     v.gaussian as u32 | ((st >> DIRECTIONS_AT) as u32) << 16
 }
 
+/// Drops direction `d` from voxel `j`'s occupied directions during growth without links ([`growth_directions`]).
+#[inline(always)]
+fn forget_direction(voxels: &mut [Voxel], scratch: &mut [u16], j: usize, d: u8) {
+    if d < 16 {
+        if let Some(v) = voxels.get_mut(j) {
+            v.gaussian &= !(1u16 << d);
+        }
+    } else if let Some(s) = scratch.get_mut(j) {
+        *s &= !(1u16 << ((d - 16) as u16 + DIRECTIONS_AT).min(15));
+    }
+}
+
 /// Most growth rounds, whatever the resolutions.
 const MAX_GROWTH_ROUNDS: u16 = 0x7ffe;
 
@@ -924,9 +943,9 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         let dn = 1.0 - linalg::dot(nv, sv.normal);
         Some(w_c * linalg::dot(dc, dc) + w_s * linalg::dot(ds, ds) + w_n * dn * dn)
     };
-    // A frontier voxel's neighbours, `around[..k]`: one array for all of them (cleared for each, it was a
-    // `memclr` call per voxel).
-    let mut around = [0u16; 26];
+    // A frontier voxel's neighbours and the directions back from them to it, `around[..k]`: one array for all
+    // of them (cleared for each, it was a `memclr` call per voxel).
+    let mut around = [(0u16, 0u8); 26];
     for round in 2..=max_rounds.saturating_add(1) {
         // Pass A: every untouched neighbour of last round's voxels (the frontier) is a candidate of this round,
         // and takes the nearest (VCCS distance; ties: lower index) of the supervoxels of those voxels around it,
@@ -941,22 +960,28 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             let Some(v) = voxels.get(i) else { continue };
             let (key, label) = (v.key, v.supervoxel);
             let mut k = 0;
-            let mut keep = |j: usize| {
+            // Direction d and 25 − d of the neighbour offsets are opposite.
+            let mut keep = |d: usize, j: usize| {
                 if let Some(a) = around.get_mut(k) {
-                    *a = j as u16;
+                    *a = (j as u16, 25u8.saturating_sub(d as u8));
                     k += 1;
                 }
             };
             if LINKED {
-                for_each_linked_neighbour::<true>(voxels, slots, links, i, key, keep);
+                for_each_linked_neighbour::<true>(voxels, slots, links, i, key, |j| keep(0, j));
             } else {
                 for_each_neighbour_among(voxels, slots, key, growth_directions(v, st), &mut keep);
             }
             if let Some(s) = scratch.get_mut(i) {
                 set_state(s, CLAIMED);
             }
-            for &j in around.get(..k).unwrap_or(&[]) {
+            for &(j, back) in around.get(..k).unwrap_or(&[]) {
                 let j = j as usize;
+                // Without links, j's walk will not look this voxel up again: claimed now, it would change
+                // nothing there (each neighbour pair is looked up once, from the side claimed first).
+                if !LINKED {
+                    forget_direction(voxels, scratch, j, back);
+                }
                 let (Some(&v), Some(&st)) = (voxels.get(j), scratch.get(j)) else { continue };
                 let take = match st & GROWTH_STATE {
                     UNTOUCHED => {
@@ -1238,7 +1263,9 @@ mod tests {
             assert_eq!(v.normal, linked[i].normal, "voxel {i}");
             let (mut all, mut among) = (heapless::Vec::<usize, 26>::new(), heapless::Vec::<usize, 26>::new());
             for_each_neighbour(&hashed[..n], &slots, v.key, |j| all.push(j).unwrap());
-            for_each_neighbour_among(&hashed[..n], &slots, v.key, occupied_directions(v), |j| among.push(j).unwrap());
+            for_each_neighbour_among(&hashed[..n], &slots, v.key, occupied_directions(v), |_, j| {
+                among.push(j).unwrap()
+            });
             assert_eq!(among, all, "voxel {i}");
         }
         // Through the hash, every direction looked up (as voxelisation leaves the fields).
