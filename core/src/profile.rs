@@ -194,7 +194,7 @@ impl<
 
 /// The `mcu` profile: a 640×480 frame in at most 512 KiB of static RAM, mapper state included (no room for the
 /// list of sampled points or the voxel links: its passes sample the frame again, its growth looks neighbours up).
-pub type McuStorage = Storage<8704, 16384, 128, 128, 576, 1024, 8, 32, 32, 256, { 640 * 480 }, 0, 0>;
+pub type McuStorage = Storage<MCU_VOXELS, 16384, 128, 128, 576, 1024, 8, 32, 32, 256, { 640 * 480 }, 0, 0>;
 
 /// The `host` profile: larger pools for workstation replays (frames up to 1280×1024; the list of sampled points
 /// holds a 15 % sample of the largest frame; links for every voxel).
@@ -217,6 +217,9 @@ pub type HostStorage = Storage<
 /// The `tiny` profile: every pool a few entries, to exercise overflow handling on real frames (robustness
 /// tests); it maps a 640×480 frame badly but never fails.
 pub type TinyStorage = Storage<512, 1024, 8, 8, 32, 64, 2, 4, 2, 128, { 640 * 480 }, 1024, 0>;
+
+/// Voxels of the mcu profile's pool (supervoxel growth keeps a bit per voxel for as many on the stack).
+pub const MCU_VOXELS: usize = 8704;
 
 /// RAM budget of the `mcu` profile, bytes.
 pub const MCU_BUDGET_BYTES: usize = 512 * 1024;

@@ -852,6 +852,57 @@ fn forget_direction(voxels: &mut [Voxel], scratch: &mut [u16], j: usize, d: u8) 
     }
 }
 
+/// Voxels of the mcu profile's pool: growth keeps one bit per voxel for them ([`GrowthMarks`]).
+const GROWTH_MARKED_VOXELS: usize = crate::profile::MCU_VOXELS;
+
+/// The voxels growth visits next (the frontier and this round's candidates), one bit per voxel index on the
+/// stack (1 088 bytes for the mcu profile's 8 704 voxels), so that a round's passes skip 32 voxels at a time
+/// instead of testing each one's state. A frame with more voxels than bits marks none and visits every index.
+struct GrowthMarks {
+    words: [u32; GROWTH_MARKED_VOXELS.div_ceil(32)],
+    /// Every index counts as marked.
+    every: bool,
+}
+
+impl GrowthMarks {
+    /// No voxel of `n` marked (every one when they are more than the bits).
+    fn new(n: usize) -> Self {
+        GrowthMarks { words: [0; GROWTH_MARKED_VOXELS.div_ceil(32)], every: n > GROWTH_MARKED_VOXELS }
+    }
+
+    /// Marks voxel `i`.
+    #[inline(always)]
+    fn set(&mut self, i: usize) {
+        if let Some(w) = self.words.get_mut(i / 32) {
+            *w |= 1 << (i % 32);
+        }
+    }
+
+    /// Unmarks voxel `i`.
+    #[inline(always)]
+    fn clear(&mut self, i: usize) {
+        if let Some(w) = self.words.get_mut(i / 32) {
+            *w &= !(1 << (i % 32));
+        }
+    }
+
+    /// The first marked voxel index at or after `from` below `n`.
+    #[inline(always)]
+    fn next(&self, from: usize, n: usize) -> Option<usize> {
+        if self.every {
+            return (from < n).then_some(from);
+        }
+        let mut k = from / 32;
+        let mut word = self.words.get(k)? & (u32::MAX << (from % 32));
+        while word == 0 {
+            k += 1;
+            word = *self.words.get(k)?;
+        }
+        let i = 32 * k + word.trailing_zeros() as usize;
+        (i < n).then_some(i)
+    }
+}
+
 /// Most growth rounds, whatever the resolutions.
 const MAX_GROWTH_ROUNDS: u16 = 0x7ffe;
 
@@ -899,6 +950,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         None => return stats,
     };
     let set_state = |st: &mut u16, state: u16| *st = (*st & !GROWTH_STATE) | state;
+    let mut marks = GrowthMarks::new(n);
 
     // --- seeds: nearest voxel to the centre of each sufficiently occupied seed cube --------------------------
     choose_seed_cells(voxels, seeds, params);
@@ -919,6 +971,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
                 if let Some(vox) = voxels.get_mut(i) {
                     vox.supervoxel = id as u16;
                 }
+                marks.set(i);
                 stats.seeds += 1;
             }
             None => {
@@ -952,11 +1005,14 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         // kept in its `supervoxel` field while it is a candidate. Those are all its labelled neighbours: a voxel
         // next to one claimed earlier was claimed the round after.
         let mut candidates = 0u32;
-        for i in 0..n {
+        let mut from = 0;
+        while let Some(i) = marks.next(from, n) {
+            from = i + 1;
             let Some(st) = scratch.get(i).copied() else { continue };
             if st & GROWTH_STATE != FRONTIER {
                 continue;
             }
+            marks.clear(i);
             let Some(v) = voxels.get(i) else { continue };
             let (key, label) = (v.key, v.supervoxel);
             let mut k = 0;
@@ -988,6 +1044,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
                         if let Some(s) = scratch.get_mut(j) {
                             set_state(s, CANDIDATE);
                         }
+                        marks.set(j);
                         candidates += 1;
                         true
                     }
@@ -1010,7 +1067,9 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
         }
         stats.rounds = round as u32 - 1;
         // Pass B: each candidate joins the supervoxel pass A chose, in voxel order, and is the next frontier.
-        for i in 0..n {
+        let mut from = 0;
+        while let Some(i) = marks.next(from, n) {
+            from = i + 1;
             let Some(st) = scratch.get_mut(i) else { continue };
             if *st & GROWTH_STATE != CANDIDATE {
                 continue;
