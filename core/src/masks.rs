@@ -219,6 +219,40 @@ mod tests {
         }
     }
 
+    /// Bit planes of 40 overlapping instances (some below the confidence), looked up through one cache: the
+    /// slot of the first usable instance holding each pixel, also from the 33rd instance on.
+    #[test]
+    fn bit_plane_slots_are_the_first_usable_instance_among_many() {
+        const N: usize = 40;
+        let (w, h) = (16u16, 4u16);
+        let plane = MaskSet::plane_bytes(w, h);
+        let mut planes = [0u8; N * 8];
+        let mut instances = [Instance { id: 0, class: 0, score: 0.0, bbox: [0, 0, w - 1, h - 1] }; N];
+        for (k, inst) in instances.iter_mut().enumerate() {
+            inst.id = k as u16 + 1;
+            inst.score = if k % 3 == 1 { 0.2 } else { 0.9 };
+            for i in 0..(w * h) as usize {
+                // Instance k holds pixel i when the pixel's pattern picks it (several per pixel, some none).
+                // The first 32 hold none of the last four columns.
+                let right = i % w as usize >= 12;
+                if (!right && (i * 7 + k * 5) % 11 < 2) || (k >= 32 && i % 5 == k % 5) {
+                    planes[k * plane + i / 8] |= 1 << (i % 8);
+                }
+            }
+        }
+        let m = MaskSet { width: w, height: h, instances: &instances, pixels: MaskPixels::BitPlanes(&planes) };
+        let mut cache = SlotCache::default();
+        let mut beyond = 0;
+        for i in 0..(w * h) as usize {
+            let (u, v) = ((i % w as usize) as u16, (i / w as usize) as u16);
+            let first = (0..N).find(|&k| instances[k].score >= 0.5 && m.contains(k, u, v));
+            let expected = first.map_or(0, |k| 1 + (k % MASK_SLOTS) as u32);
+            beyond += usize::from(first.is_some_and(|k| k >= 32));
+            assert_eq!(m.voxel_slot_cached(u, v, 0.5, &mut cache), expected, "pixel {i}");
+        }
+        assert!(beyond > 0, "no pixel's first usable instance lies beyond the 32nd");
+    }
+
     /// Another usable instance holds a pixel in either layout; the own instance, an instance below the
     /// confidence, no instance and a pixel outside the image do not.
     #[test]
