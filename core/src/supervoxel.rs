@@ -1024,6 +1024,7 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
                 }
             };
             if LINKED {
+                // (With links no direction is dropped: the one passed is not read.)
                 for_each_linked_neighbour::<true>(voxels, slots, links, i, key, |j| keep(0, j));
             } else {
                 for_each_neighbour_among(voxels, slots, key, growth_directions(v, st), &mut keep);
@@ -1200,6 +1201,8 @@ fn choose_seed_cells(voxels: &[Voxel], seeds: &mut Bounded<'_, SeedCell>, params
 
 #[cfg(test)]
 mod tests {
+    extern crate std;
+
     use super::*;
 
     #[test]
@@ -1344,6 +1347,33 @@ mod tests {
         assert_eq!(by_all, by_links);
         let occupied: u32 = links[..n].iter().map(|l| l.occupied.count_ones()).sum();
         assert!(occupied < 26 * n as u32 / 2, "{occupied} of {} directions occupied", 26 * n);
+    }
+
+    /// Growth's marks give the marked indices below `n` in order, across words and after clears; with more
+    /// voxels than bits, every index.
+    #[test]
+    fn growth_marks_visit_the_marked_voxels_in_order() {
+        let n = GROWTH_MARKED_VOXELS - 3;
+        let mut marks = GrowthMarks::new(n);
+        let marked = [0usize, 5, 31, 32, 33, 100, 4095, 4096, n - 1, n, GROWTH_MARKED_VOXELS - 1];
+        for &i in &marked {
+            marks.set(i);
+        }
+        marks.clear(33);
+        let visit = |marks: &GrowthMarks, n: usize| {
+            let (mut out, mut from) = (std::vec::Vec::new(), 0);
+            while let Some(i) = marks.next(from, n) {
+                out.push(i);
+                from = i + 1;
+            }
+            out
+        };
+        assert_eq!(visit(&marks, n), [0, 5, 31, 32, 100, 4095, 4096, n - 1]);
+        assert_eq!(marks.next(n - 1, n), Some(n - 1));
+        assert_eq!(marks.next(n, n), None);
+        let many = GROWTH_MARKED_VOXELS + 10;
+        let every = GrowthMarks::new(many);
+        assert_eq!(visit(&every, many), (0..many).collect::<std::vec::Vec<_>>());
     }
 
     #[test]
