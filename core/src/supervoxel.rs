@@ -256,6 +256,13 @@ fn inside_key_range(x: i32, y: i32, z: i32) -> bool {
     -h < x && x < h && -h < y && y < h && 0 < z && z < h
 }
 
+/// The direction opposite direction `d` (< 26) of [`NEIGHBOURS`]: its offsets are symmetric about the
+/// centre, so direction d and 25 − d point opposite ways.
+#[inline(always)]
+const fn opposite(d: usize) -> usize {
+    25usize.saturating_sub(d)
+}
+
 /// Every direction of [`NEIGHBOURS`] as a bit set: bit d for direction d.
 const ALL_DIRECTIONS: u32 = (1 << 26) - 1;
 
@@ -695,7 +702,7 @@ fn link_voxels(voxels: &[Voxel], slots: &[u16], links: &mut [VoxelLinks]) {
     for (i, v) in voxels.iter().enumerate() {
         for d in 13..26 {
             let Some(j) = neighbour_key(v.key, d).and_then(|k| find_voxel(voxels, slots, k)) else { continue };
-            for (a, b, e) in [(i, j, d), (j, i, 25 - d)] {
+            for (a, b, e) in [(i, j, d), (j, i, opposite(d))] {
                 if let Some(l) = links.get_mut(a) {
                     if let Some(slot) = l.neighbours.get_mut(e) {
                         *slot = b as u16;
@@ -1016,10 +1023,9 @@ fn grow<const LINKED: bool>(pools: SupervoxelPools<'_, '_>, links: &[VoxelLinks]
             let Some(v) = voxels.get(i) else { continue };
             let (key, label) = (v.key, v.supervoxel);
             let mut k = 0;
-            // Direction d and 25 − d of the neighbour offsets are opposite.
             let mut keep = |d: usize, j: usize| {
                 if let Some(a) = around.get_mut(k) {
-                    *a = (j as u16, 25u8.saturating_sub(d as u8));
+                    *a = (j as u16, opposite(d) as u8);
                     k += 1;
                 }
             };
