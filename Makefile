@@ -102,6 +102,8 @@ firmware:
 	@reserve=$$((16#$$(arm-none-eabi-nm $(FW_ELF) | awk '$$3 == "_stack_reserve" { print $$1 }'))); \
 		hw=$$(sed -n 's/^stack high-water \([0-9]*\) bytes.*/\1/p' target/fw-run.txt); \
 		[ -n "$$hw" ] && [ "$$hw" -le "$$reserve" ] || { echo "firmware: FAILED: stack high-water $$hw bytes > the $$reserve-byte reserve"; exit 1; }
+	@grep -q '^floor self-check: the core.s floor equals libm.s on [0-9]* values' target/fw-run.txt || \
+		{ echo "firmware: FAILED: the floor self-check did not pass (or did not run)"; exit 1; }
 	@grep -qx 'heap allocations during process: 0' target/fw-run.txt || \
 		{ echo "firmware: FAILED: the core allocated on the heap during process (or the count is missing)"; exit 1; }
 	@echo "firmware: the Cortex-M7 maps, world deltas and segmenter masks equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"

@@ -164,6 +164,24 @@ fn spin(n: u32) {
     }
 }
 
+/// The core's floor to an integer (the FPU's `vcvtm.s32.f32` here, feature `vcvtm`) against libm's software
+/// `floorf` over the edge cases and every 4099th bit pattern, as the host's test of the other path
+/// (`fpu/src/lib.rs`): the maps would show a difference only where a point falls on a voxel's face.
+fn check_floor() {
+    let special = [0.0, -0.0, 0.5, -0.5, -1.0, -1.5, 2.9e9, -2.9e9, -2_147_483_648.0, f32::NAN, f32::INFINITY];
+    let strided = (0..=u32::MAX).step_by(4099).map(f32::from_bits);
+    let mut checked = 0u32;
+    for x in special.into_iter().chain(strided).chain([f32::NEG_INFINITY, f32::MIN, f32::MAX]) {
+        let x = core::hint::black_box(x);
+        if m2smap_core::linalg::floor_i32(x) != libm::floorf(x) as i32 {
+            defmt::error!("floor of {=u32:#010x}", x.to_bits());
+            fail("the core's floor differs from libm's");
+        }
+        checked += 1;
+    }
+    defmt::println!("floor self-check: the core's floor equals libm's on {=u32} values", checked);
+}
+
 fn fail(what: &str) -> ! {
     defmt::error!("error: {=str}", what);
     exit_failure()
@@ -310,6 +328,8 @@ fn main() -> ! {
         centi / 100,
         centi % 100
     );
+
+    check_floor();
 
     // SAFETY: `main` runs once and is the only user of STORAGE; all-zero bytes are a valid McuStorage.
     let storage: &'static mut McuStorage = unsafe { (*addr_of_mut!(STORAGE)).assume_init_mut() };
