@@ -5,7 +5,7 @@ use m2smap::eval::{fusion_metrics, semantic_metrics};
 use m2smap::masks::LabelTable;
 use m2smap::synth::{Scene, SynthFrame};
 use m2smap_core::gmm::{ROLE_OBJECT, ROLE_PLANE};
-use m2smap_core::supervoxel::is_assigned;
+use m2smap_core::supervoxel::{is_assigned, Revisit};
 use m2smap_core::{HostStorage, Mapper, Params, Variant};
 
 /// Per-frame facts the tests check.
@@ -256,6 +256,69 @@ fn adhesion_and_semantic_consistency_counted_by_hand() {
     assert_eq!(fusion_metrics(std::iter::empty()), Default::default());
 }
 
+/// A pass that samples the points again finds each point's voxel by its cube first and looks its mask slot up
+/// only where several slots' voxels share the cube (`Revisit::Resampled { by_cube: true }`): the same voxel for
+/// every point as the lookup by slot, with masks as an id image and as overlapping bit planes; and a voxel is
+/// marked as sharing its cube exactly when another voxel has the same cube.
+#[test]
+fn points_found_by_cube_are_in_the_voxels_of_their_mask_slot() {
+    use m2smap::masks::{FrameMasks, Pixels};
+    use m2smap_core::supervoxel::{for_each_voxel_point, unpack};
+    for name in ["tabletop", "clutter", "kitchen"] {
+        let scene = Scene::named(name).unwrap();
+        let frame = scene.render(0, Some(1));
+        let ids_masks = scene.perfect_masks(&frame, &mut LabelTable::default());
+        let Pixels::Ids(ids) = &ids_masks.pixels else { panic!("perfect masks are an id image") };
+        let plane = m2smap_core::MaskSet::plane_bytes(ids_masks.width, ids_masks.height);
+        let mut bits = vec![0u8; plane * ids_masks.instances.len()];
+        for (k, inst) in ids_masks.instances.iter().enumerate() {
+            for (i, _) in ids.iter().enumerate().filter(|(_, &id)| id == inst.id) {
+                bits[k * plane + i / 8] |= 1 << (i % 8);
+            }
+        }
+        // Instance 0 also covers instance 1's pixels.
+        let (first, rest) = bits.split_at_mut(plane);
+        first.iter_mut().zip(&rest[..plane]).for_each(|(a, b)| *a |= b);
+        let overlapping = FrameMasks { pixels: Pixels::Bits(bits), ..ids_masks.clone() };
+        for masks in [&ids_masks, &overlapping] {
+            let mut storage = bytemuck::zeroed_box::<HostStorage>();
+            let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
+            let checked = mapper.check(frame.frame.view(&scene.camera), Some(masks.view())).unwrap();
+            mapper.stage_voxels(&checked);
+            assert_eq!(mapper.report().dropped_points, 0, "{name}");
+            let voxels = mapper.voxels();
+            let cube = |key: u32| {
+                let (x, y, z) = unpack(key);
+                (x, y, z)
+            };
+            let mut shared = 0;
+            for (i, v) in voxels.iter().enumerate() {
+                let others = voxels.iter().enumerate().any(|(j, o)| j != i && cube(o.key) == cube(v.key));
+                assert_eq!(v.shares_cube(), others, "{name}: voxel {i}");
+                shared += others as usize;
+            }
+            assert!(shared >= 20, "{name}: {shared} voxels share their cube");
+            let view = masks.view();
+            let visit = |by_cube: bool| {
+                let mut seen = Vec::new();
+                let revisit = Revisit::Resampled { by_cube };
+                let slots = mapper.voxel_slots();
+                for_each_voxel_point(checked.frame(), mapper.params(), Some(&view), voxels, slots, revisit, |p, v| {
+                    seen.push((p.u, p.v, v.map(|(i, _)| i)))
+                });
+                seen
+            };
+            let (by_slot, by_cube) = (visit(false), visit(true));
+            assert!(by_slot.len() > 5000, "{name}: {} points", by_slot.len());
+            assert!(by_slot.iter().all(|&(_, _, v)| v.is_some()), "{name}: every point has its voxel");
+            assert_eq!(by_cube.len(), by_slot.len(), "{name}");
+            let differ = by_cube.iter().zip(&by_slot).filter(|(a, b)| a != b).count();
+            let first = by_cube.iter().zip(&by_slot).find(|(a, b)| a != b);
+            assert_eq!(differ, 0, "{name}: {differ} points in other voxels, the first {first:?}");
+        }
+    }
+}
+
 /// The annotation stage counts mask hits from the voxels where the voxels were split by the masks, and those
 /// counts are the pixel pass's, pair for pair: perfect masks as an id image and as disjoint bit planes, every
 /// instance cut into four bands (more instances than the 7 mask slots: a slot's voxels are given to
@@ -346,20 +409,30 @@ fn mask_hits_from_voxels_are_the_pixel_counts() {
             // The fast count revisits the points from voxelisation's list, the pixel pass samples them again.
             let listed = mapper.sampled_points(checked.frame());
             assert!(listed.is_some(), "{name}: the host profile lists the sampled points");
+            let listed = Revisit::Listed(listed.unwrap());
             let a =
                 count_hits(args.0, &split, Some(&split), within, args.1, args.2, listed, args.3, &mut fast, &params);
-            let b = count_hits(
-                args.0,
-                &by_pixels_masks,
-                Some(&split),
-                within,
-                args.1,
-                args.2,
-                None,
-                args.3,
-                &mut slow,
-                &params,
-            );
+            let slow_count = |by_cube: bool, hits: &mut [MaskHit]| {
+                count_hits(
+                    args.0,
+                    &by_pixels_masks,
+                    Some(&split),
+                    within,
+                    args.1,
+                    args.2,
+                    Revisit::Resampled { by_cube },
+                    args.3,
+                    hits,
+                    &params,
+                )
+            };
+            let b = slow_count(false, &mut slow);
+            // Sampled again and found by cube first (no point of the frame was refused a voxel): the same counts.
+            assert_eq!(mapper.report().dropped_points, 0, "{name}");
+            let mut by_cube = vec![zero; 4096];
+            let c = slow_count(true, &mut by_cube);
+            assert_eq!((c.hit_pairs, c.hit_overflows, c.by_voxels), (b.hit_pairs, b.hit_overflows, b.by_voxels));
+            assert_eq!(by_cube, slow, "{name}: hits found by cube");
             assert_eq!(a.by_voxels, shortcut, "{name}: shortcut taken");
             assert!(!b.by_voxels);
             let mut inside = 0;
@@ -374,7 +447,18 @@ fn mask_hits_from_voxels_are_the_pixel_counts() {
             // Boxes that do not hold their masks must not be trusted: with traded boxes they would miscount.
             if std::ptr::eq(masks, &swapped) {
                 let mut wrong = vec![zero; 4096];
-                count_hits(args.0, &split, Some(&split), true, args.1, args.2, None, args.3, &mut wrong, &params);
+                count_hits(
+                    args.0,
+                    &split,
+                    Some(&split),
+                    true,
+                    args.1,
+                    args.2,
+                    Revisit::Resampled { by_cube: false },
+                    args.3,
+                    &mut wrong,
+                    &params,
+                );
                 let differs = (0..mapper.gaussians().len())
                     .any(|g| (0..masks.instances.len()).any(|k| hits_of(&wrong, g, k) != hits_of(&slow, g, k)));
                 assert!(differs, "{name}: traded boxes, trusted, count as the pixel pass does");

@@ -16,7 +16,7 @@ use crate::masks::{Instance, MaskPixels, MaskSet, MASK_SLOTS};
 use crate::params::Params;
 use crate::points::PixelWindow;
 use crate::pool::Bounded;
-use crate::supervoxel::{self, SampledPoint, Voxel};
+use crate::supervoxel::{self, Revisit, Voxel};
 
 /// Largest number of instances per frame that annotation considers (the instance index is stored in 8 bits);
 /// further instances are ignored and counted.
@@ -121,7 +121,7 @@ pub fn count_hits(
     masks_within_boxes: bool,
     voxels: &[Voxel],
     slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
+    revisit: Revisit<'_>,
     gaussians: &[Gaussian],
     hits: &mut [MaskHit],
     params: &Params,
@@ -132,7 +132,7 @@ pub fn count_hits(
         ..Default::default()
     };
     let count_points = |hits: &mut [MaskHit], scope: Option<&Undecided>| {
-        count_point_hits(frame, masks, voxel_masks, voxels, slots, sampled, gaussians, hits, params, scope)
+        count_point_hits(frame, masks, voxel_masks, voxels, slots, revisit, gaussians, hits, params, scope)
     };
     if let Some(undecided) =
         count_hits_by_voxel(masks, voxel_masks, masks_within_boxes, voxels, gaussians, hits, params)
@@ -159,7 +159,7 @@ fn count_point_hits(
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
+    revisit: Revisit<'_>,
     gaussians: &[Gaussian],
     hits: &mut [MaskHit],
     params: &Params,
@@ -175,7 +175,7 @@ fn count_point_hits(
     let mut overflows = 0;
     let instances = masks.instances.get(..MAX_INSTANCES.min(masks.instances.len())).unwrap_or(&[]);
     let w = frame.width as usize;
-    supervoxel::for_each_voxel_point_in(frame, params, voxel_masks, voxels, slots, sampled, window, |p, v| {
+    supervoxel::for_each_voxel_point_in(frame, params, voxel_masks, voxels, slots, revisit, window, |p, v| {
         let Some((_, v)) = v else { return };
         let g = v.gaussian as usize;
         let Some(gauss) = gaussians.get(g).filter(|gauss| counted(v, gauss)) else { return };
@@ -415,7 +415,7 @@ pub fn cut_along_masks(
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &mut [Voxel],
     slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
+    revisit: Revisit<'_>,
     scratch: &mut [u16],
     gaussians: &mut Bounded<'_, Gaussian>,
     hits: &[MaskHit],
@@ -444,7 +444,7 @@ pub fn cut_along_masks(
     inside.fill(0);
     {
         let gauss = gaussians.as_slice();
-        supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, sampled, |p, v| {
+        supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, revisit, |p, v| {
             let Some((vi, g)) = v.and_then(|(vi, v)| gauss.get(v.gaussian as usize).map(|g| (vi, g))) else { return };
             let Some(cut) = (g.owner as usize).checked_sub(1).and_then(|c| cuts.get(c)) else { return };
             if masks.contains(cut.instance as usize, p.u, p.v) {
@@ -493,7 +493,7 @@ pub fn cut_along_masks(
             voxel_masks,
             voxels,
             slots,
-            sampled,
+            revisit,
             scratch,
             gaussians.as_mut_slice(),
             params,

@@ -38,7 +38,7 @@ use crate::linalg::{self, Moments, Sym3, Vec3};
 use crate::masks::MaskSet;
 use crate::params::Params;
 use crate::pool::Bounded;
-use crate::supervoxel::{self, SampledPoint, Supervoxel, Voxel, DROPPED};
+use crate::supervoxel::{self, Revisit, Supervoxel, Voxel, DROPPED};
 
 /// One refined Gaussian component of C_g.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
@@ -134,8 +134,8 @@ pub struct GmmPools<'a, 'b> {
     pub voxels: &'a mut [Voxel],
     /// The voxel hash slots.
     pub slots: &'a [u16],
-    /// Voxelisation's list of the sampled points, when complete ([`supervoxel::for_each_voxel_point`]).
-    pub sampled: Option<&'a [SampledPoint]>,
+    /// How the passes find the sampled points again ([`supervoxel::Revisit`]).
+    pub revisit: Revisit<'a>,
     /// Voxel order scratch (at least as long as `voxels`).
     pub order: &'a mut [u16],
     /// Supervoxels of stage 2.
@@ -153,7 +153,7 @@ pub fn refine(
     voxel_masks: Option<&MaskSet<'_>>,
     params: &Params,
 ) -> GmmStats {
-    let GmmPools { voxels, slots, sampled, order, supervoxels, stack, gaussians } = pools;
+    let GmmPools { voxels, slots, revisit, order, supervoxels, stack, gaussians } = pools;
     let mut stats = GmmStats::default();
     gaussians.clear();
     stack.clear();
@@ -185,7 +185,7 @@ pub fn refine(
     }
     gaussians.add_overflows(stats.splits_refused);
 
-    point_statistics(frame, voxel_masks, voxels, slots, sampled, gaussians.as_mut_slice(), params);
+    point_statistics(frame, voxel_masks, voxels, slots, revisit, gaussians.as_mut_slice(), params);
     stats
 }
 
@@ -216,11 +216,11 @@ pub fn point_statistics(
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
+    revisit: Revisit<'_>,
     gaussians: &mut [Gaussian],
     params: &Params,
 ) {
-    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, sampled, |p, v| {
+    supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, revisit, |p, v| {
         let Some(g) = v.and_then(|(_, v)| gaussians.get_mut(v.gaussian as usize)) else { return };
         let d = linalg::sub(p.xyz, g.mean);
         let c = &mut g.covariance;
@@ -257,7 +257,7 @@ pub fn recompute_statistics(
     voxel_masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
+    revisit: Revisit<'_>,
     order: &mut [u16],
     gaussians: &mut [Gaussian],
     params: &Params,
@@ -281,7 +281,7 @@ pub fn recompute_statistics(
         }
         start = end;
     }
-    point_statistics(frame, voxel_masks, voxels, slots, sampled, gaussians, params);
+    point_statistics(frame, voxel_masks, voxels, slots, revisit, gaussians, params);
 }
 
 /// Weighted voxel-centroid moments of the range, and its point count.
@@ -523,7 +523,7 @@ mod tests {
             GmmPools {
                 voxels: &mut voxels,
                 slots: &[],
-                sampled: Some(&[]),
+                revisit: Revisit::Listed(&[]),
                 order: &mut order,
                 supervoxels: &mut supervoxels,
                 stack: &mut stack,

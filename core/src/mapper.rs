@@ -219,6 +219,9 @@ pub struct Mapper<'s> {
     /// The depth buffer (address and length) `sampled` was listed from: the list, which keeps each point's
     /// position, serves a caller's frame only when it is that one ([`Mapper::sampled_points`]).
     sampled_from: (usize, usize),
+    /// Whether the passes that sample the last frame again may find a point's voxel by its cube
+    /// ([`supervoxel::Revisit::Resampled`]): no point of it was refused a voxel.
+    by_cube: bool,
     /// Each voxel's centroid and neighbours ([`supervoxel::VoxelLinks`]).
     links: &'s mut [supervoxel::VoxelLinks],
     /// Whether `links` holds an entry for every voxel of the current frame.
@@ -261,6 +264,7 @@ impl<'s> Mapper<'s> {
             sampled: Bounded::new(parts.sampled),
             sampled_complete: false,
             sampled_from: (0, 0),
+            by_cube: false,
             links: parts.links,
             linked: false,
             patches: [bytemuck::Zeroable::zeroed(); plane::MAX_FLAT_PATCHES],
@@ -294,7 +298,7 @@ impl<'s> Mapper<'s> {
     /// of them and `frame` is the frame it was listed from (the same depth buffer; for
     /// [`supervoxel::for_each_voxel_point`], which takes the listed positions instead of `frame`'s).
     pub fn sampled_points(&self, frame: &Frame<'_>) -> Option<&[supervoxel::SampledPoint]> {
-        listed(&self.sampled, self.sampled_complete).filter(|_| self.sampled_from == depth_buffer(frame))
+        Some(self.sampled.as_slice()).filter(|_| self.sampled_complete && self.sampled_from == depth_buffer(frame))
     }
 
     /// Whether the last frame's voxels were split by id-image masks and every sampled point of a usable
@@ -422,6 +426,7 @@ impl<'s> Mapper<'s> {
         self.report.voxel_resolution_m = self.params.voxel_resolution;
         self.sampled_complete = self.sampled.capacity() > 0 && self.sampled.usage().overflow_events == 0;
         self.sampled_from = depth_buffer(&checked.frame);
+        self.by_cube = stats.unplaced_points == 0;
         self.masks_within_boxes = voxel_masks.is_some_and(|m| matches!(m.pixels, crate::masks::MaskPixels::IdImage(_)))
             && !stats.mask_pixels_outside_boxes;
         self.report.voxel_range_m = self.params.depth_max;
@@ -462,7 +467,7 @@ impl<'s> Mapper<'s> {
             GmmPools {
                 voxels: self.voxels.as_mut_slice(),
                 slots: self.slots,
-                sampled: listed(&self.sampled, self.sampled_complete),
+                revisit: revisit(&self.sampled, self.sampled_complete, self.by_cube),
                 order: self.scratch,
                 supervoxels: self.supervoxels.as_mut_slice(),
                 stack: &mut self.stack,
@@ -501,7 +506,7 @@ impl<'s> Mapper<'s> {
                 voxel_masks.as_ref(),
                 self.voxels.as_mut_slice(),
                 self.slots,
-                listed(&self.sampled, self.sampled_complete),
+                revisit(&self.sampled, self.sampled_complete, self.by_cube),
                 self.scratch,
                 &mut self.gaussians,
                 self.mask_hits,
@@ -533,7 +538,7 @@ impl<'s> Mapper<'s> {
             self.masks_within_boxes,
             self.voxels.as_slice(),
             self.slots,
-            listed(&self.sampled, self.sampled_complete),
+            revisit(&self.sampled, self.sampled_complete, self.by_cube),
             self.gaussians.as_slice(),
             self.mask_hits,
             &self.params,
@@ -706,7 +711,7 @@ impl<'s> Mapper<'s> {
                     voxel_masks.as_ref(),
                     self.voxels.as_slice(),
                     self.slots,
-                    listed(&self.sampled, self.sampled_complete),
+                    revisit(&self.sampled, self.sampled_complete, self.by_cube),
                     window,
                     sample,
                 );
@@ -959,6 +964,9 @@ impl<'s> Mapper<'s> {
         self.frames += 1;
         // The list holds the points of this frame's (possibly cut) depth range only.
         self.sampled_complete &= self.params.depth_max == self.depth_max;
+        // So do the voxels: a pass with the configured range and edge is not the frame's.
+        self.by_cube &=
+            self.params.depth_max == self.depth_max && self.params.voxel_resolution == self.voxel_resolution;
         self.params.depth_max = self.depth_max;
         self.params.voxel_resolution = self.voxel_resolution;
         self.report.gmms = self.gaussians.as_slice().iter().filter(|g| self.is_gmm_primitive(g)).count() as u32;
@@ -1182,7 +1190,12 @@ impl<'s> Mapper<'s> {
             self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
-            self.sampled_points(&checked.frame),
+            match self.sampled_points(&checked.frame) {
+                Some(list) => supervoxel::Revisit::Listed(list),
+                None => supervoxel::Revisit::Resampled {
+                    by_cube: self.by_cube && self.sampled_from == depth_buffer(&checked.frame),
+                },
+            },
             |p, v| f(p, v.map(|(_, v)| v)),
         );
     }
@@ -1193,13 +1206,19 @@ fn depth_buffer(frame: &Frame<'_>) -> (usize, usize) {
     (frame.depth.as_ptr() as usize, frame.depth.len())
 }
 
-/// Voxelisation's list of sampled points when it holds the whole frame (`complete`), else `None` (the passes
-/// sample again). A function of the two fields, not of the mapper, so a stage can lend it beside other fields.
-fn listed<'a>(
+/// How the passes find the frame's points again: voxelisation's list of sampled points when it holds the whole
+/// frame (`complete`), else by sampling again, by cube first when `by_cube` ([`supervoxel::Revisit`]). A
+/// function of the fields, not of the mapper, so a stage can lend it beside other fields.
+fn revisit<'a>(
     sampled: &'a Bounded<'_, supervoxel::SampledPoint>,
     complete: bool,
-) -> Option<&'a [supervoxel::SampledPoint]> {
-    Some(sampled.as_slice()).filter(|_| complete)
+    by_cube: bool,
+) -> supervoxel::Revisit<'a> {
+    if complete {
+        supervoxel::Revisit::Listed(sampled.as_slice())
+    } else {
+        supervoxel::Revisit::Resampled { by_cube }
+    }
 }
 
 /// The planes and flat patches an object (instance `instance`) with fit points `points` (camera frame) rests

@@ -242,22 +242,30 @@ pub fn bucket(key: u32, slots: usize) -> usize {
 /// 95.4 / 78.8 / 76.3 M.
 #[inline]
 pub fn find(slots: &[u16], key: u32, mut key_of: impl FnMut(usize) -> Option<u32>) -> Option<usize> {
+    find_where(slots, key, |i| key_of(i) == Some(key))
+}
+
+/// The first entry, in probe order from the bucket of `hashed`, for which `matches(i)` holds, up to the first
+/// empty slot: [`find`] of a table whose keys are stored at the bucket of a hash of their own ([`probe_hashed`]),
+/// or the first of the keys that share that hash.
+#[inline]
+pub fn find_where(slots: &[u16], hashed: u32, mut matches: impl FnMut(usize) -> bool) -> Option<usize> {
     let n = slots.len();
     if !n.is_power_of_two() {
-        return match probe(slots, key, key_of) {
+        return match probe_where(slots, hashed, matches) {
             Probe::Found(i) => Some(i),
             _ => None,
         };
     }
     let mask = n - 1;
-    let mut pos = bucket(key, n);
+    let mut pos = bucket(hashed, n);
     for _ in 0..n {
         let s = *slots.get(pos)?;
         if s == 0 {
             return None;
         }
         let i = s as usize - 1;
-        if key_of(i) == Some(key) {
+        if matches(i) {
             return Some(i);
         }
         pos = (pos + 1) & mask;
@@ -276,16 +284,27 @@ pub enum Probe {
 }
 
 /// Linear probing over `slots` (entry index + 1, 0 = empty) for `key`, where `key_of(i)` is entry i's key.
-pub fn probe(slots: &[u16], key: u32, mut key_of: impl FnMut(usize) -> Option<u32>) -> Probe {
+pub fn probe(slots: &[u16], key: u32, key_of: impl FnMut(usize) -> Option<u32>) -> Probe {
+    probe_hashed(slots, key, key, key_of)
+}
+
+/// [`probe`] from the bucket of `hashed` instead of `key`'s: a table whose keys are placed by a hash of part
+/// of them (the voxels', by their cube without the mask slot). Look such keys up with [`find_where`] from the
+/// same `hashed`.
+pub fn probe_hashed(slots: &[u16], hashed: u32, key: u32, mut key_of: impl FnMut(usize) -> Option<u32>) -> Probe {
+    probe_where(slots, hashed, |i| key_of(i) == Some(key))
+}
+
+/// Linear probing from the bucket of `hashed` for the first entry i with `matches(i)`.
+fn probe_where(slots: &[u16], hashed: u32, mut matches: impl FnMut(usize) -> bool) -> Probe {
     let n = slots.len();
-    let mut pos = bucket(key, n);
+    let mut pos = bucket(hashed, n);
     for _ in 0..n {
         match slots.get(pos).copied() {
             Some(0) => return Probe::Vacant(pos),
             Some(s) => {
-                let i = s as usize - 1;
-                if key_of(i) == Some(key) {
-                    return Probe::Found(i);
+                if matches(s as usize - 1) {
+                    return Probe::Found(s as usize - 1);
                 }
             }
             None => return Probe::Full,

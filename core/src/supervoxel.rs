@@ -64,9 +64,13 @@ pub struct Voxel {
     /// Σ R, Σ G and Σ B over its points, 21 bits each, packed little-endian into a 64-bit word held as two
     /// `u32`s (R in bits 0–20, G in 21–41, B in 42–62); read them with [`Voxel::colour_sums`]. A voxel takes at
     /// most [`MAX_VOXEL_POINTS`] points, so no sum overflows its field (4 bytes less per voxel than three
-    /// `u32`s: 32 KiB of the mcu profile).
+    /// `u32`s: 32 KiB of the mcu profile). Bit 63 (the top bit of the second word) is the shared-cube flag
+    /// ([`Voxel::shares_cube`]).
     pub colour_sum: [u32; 2],
 }
+
+/// The shared-cube flag's bit in `colour_sum[1]`, above the packed sums (which never carry into it).
+const SHARED_CUBE_BIT: u32 = 1 << 31;
 
 /// Most points a voxel takes (255 × 8 223 < 2²¹, the width of a packed colour sum); later ones are dropped and
 /// counted. A 3 cm voxel holds at most ~2 000 sampled points even at 0.3 m.
@@ -95,6 +99,17 @@ impl Voxel {
         let packed = lo as u64 | (hi as u64) << 32;
         let field = (1u64 << COLOUR_SUM_BITS) - 1;
         [0, 1, 2].map(|k| ((packed >> (k * COLOUR_SUM_BITS)) & field) as u32)
+    }
+
+    /// Whether another voxel of the frame has the same cube in another mask slot (set by [`voxelize`]).
+    #[inline]
+    pub fn shares_cube(&self) -> bool {
+        self.colour_sum[1] & SHARED_CUBE_BIT != 0
+    }
+
+    /// Sets [`Voxel::shares_cube`].
+    fn mark_shared_cube(&mut self) {
+        self.colour_sum[1] |= SHARED_CUBE_BIT;
     }
 
     /// Adds one point's colour to the sums (the caller keeps the count at most [`MAX_VOXEL_POINTS`]).
@@ -203,7 +218,18 @@ fn pack(ix: i32, iy: i32, iz: i32, slot: u32) -> Option<u32> {
     if ix < -h || ix > h || iy < -h || iy > h || !(0..=h).contains(&iz) || slot > 7 {
         return None;
     }
-    Some((ix + 512) as u32 | ((iy + 512) as u32) << 10 | (iz as u32) << 20 | slot << 29)
+    Some((ix + 512) as u32 | ((iy + 512) as u32) << 10 | (iz as u32) << 20 | slot << SLOT_SHIFT)
+}
+
+/// Bit of a packed key where its mask slot starts.
+const SLOT_SHIFT: u32 = 29;
+/// The bits of a packed key below its mask slot: its cube.
+const CUBE_BITS: u32 = (1 << SLOT_SHIFT) - 1;
+
+/// The key of the cube of `cube_key` (a key of slot 0) in mask slot `slot`; `None` for a slot above 7.
+#[inline]
+fn in_slot(cube_key: u32, slot: u32) -> Option<u32> {
+    (slot <= 7).then_some(cube_key | slot << SLOT_SHIFT)
 }
 
 /// Integer cube coordinates (x, y, z) of a packed key.
@@ -215,7 +241,7 @@ pub fn unpack(key: u32) -> (i32, i32, i32) {
 /// The mask slot of a packed key.
 #[inline]
 pub fn key_slot(key: u32) -> u32 {
-    key >> 29
+    key >> SLOT_SHIFT
 }
 
 /// Corner (minimum) of the cube with `key`, metres.
@@ -225,10 +251,22 @@ pub fn key_corner(key: u32, resolution: f32) -> Vec3 {
     cube_corner([x, y, z], resolution)
 }
 
-/// Index of the voxel with `key`, if occupied.
+/// Index of the voxel with `key`, if occupied. Voxels are hashed by their cube alone (the key without its mask
+/// slot, [`probe_voxel`]), so the voxels of one cube in different slots lie in one probe run.
 #[inline(always)]
 pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
-    pool::find(slots, key, |i| voxels.get(i).map(|v| v.key))
+    pool::find_where(slots, key & CUBE_BITS, |i| voxels.get(i).is_some_and(|v| v.key == key))
+}
+
+/// Index of the first voxel, in probe order, of the cube of `cube_key` (a key of slot 0) in any mask slot.
+#[inline(always)]
+fn find_cube(voxels: &[Voxel], slots: &[u16], cube_key: u32) -> Option<usize> {
+    pool::find_where(slots, cube_key, |i| voxels.get(i).is_some_and(|v| v.key & CUBE_BITS == cube_key))
+}
+
+/// [`pool::probe`] for a voxel `key` in the voxel hash: from the bucket of its cube (see [`find_voxel`]).
+pub fn probe_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Probe {
+    pool::probe_hashed(slots, key & CUBE_BITS, key, |i| voxels.get(i).map(|v| v.key))
 }
 
 /// The 26 neighbour offsets (dx, dy, dz) in visiting order (z outermost, x innermost), each with the change it
@@ -374,22 +412,37 @@ pub struct SampledPoint {
 /// [`SampledPoint::voxel`] of a point without a voxel.
 pub const NO_VOXEL: u16 = u16::MAX;
 
+/// Where a pass after voxelisation finds the frame's sampled points and their voxels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Revisit<'a> {
+    /// Voxelisation's complete list of the frame's points ([`SampledPoint`]).
+    Listed(&'a [SampledPoint]),
+    /// The points are sampled, back-projected and hashed again. `by_cube`: every sampled point of this frame
+    /// found its voxel ([`VoxelStats::unplaced_points`] was 0, the frame is the one voxelised, with the same
+    /// range and voxel edge), so a point whose cube has one voxel only is in it whatever its mask slot, and
+    /// only the points of cubes shared by several slots ([`Voxel::shares_cube`]) look their slot up in the
+    /// masks (measured on the Cortex-M7: a bit-plane slot lookup is about 45 instructions a point).
+    Resampled {
+        /// Whether the points may find their voxel by their cube first.
+        by_cube: bool,
+    },
+}
+
 /// Calls `f(point, voxel)` for every sampled point of `frame` with the index and record of the voxel it fell
 /// into (`None` when it found no voxel: pool full or outside the key range). `masks` must be the ones the
-/// voxels were made with. `sampled`: voxelisation's complete list of this frame's points
-/// ([`SampledPoint`]), else `None` and the points are sampled and hashed again — the same points, voxels and
-/// order either way. The one way every stage after voxelisation revisits the points. The points carry no colour
-/// (`rgb` is `[0, 0, 0]`): the voxels keep it.
+/// voxels were made with. `revisit`: how the points and their voxels are found again ([`Revisit`]) — the same
+/// points, voxels and order either way. The one way every stage after voxelisation revisits the points. The
+/// points carry no colour (`rgb` is `[0, 0, 0]`): the voxels keep it.
 pub fn for_each_voxel_point(
     frame: &Frame<'_>,
     params: &Params,
     masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
+    revisit: Revisit<'_>,
     f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
-    for_each_voxel_point_in(frame, params, masks, voxels, slots, sampled, points::PixelWindow::WHOLE, f);
+    for_each_voxel_point_in(frame, params, masks, voxels, slots, revisit, points::PixelWindow::WHOLE, f);
 }
 
 /// [`for_each_voxel_point`] over the pixels of `window` only (the same points in the same order as the
@@ -401,15 +454,19 @@ pub fn for_each_voxel_point_in(
     masks: Option<&MaskSet<'_>>,
     voxels: &[Voxel],
     slots: &[u16],
-    sampled: Option<&[SampledPoint]>,
+    revisit: Revisit<'_>,
     window: points::PixelWindow,
     f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     // Two functions, each calling `f` once, so that each inlines it (the pass over the pixels is the code
     // the mcu profile runs, instruction for instruction).
-    match sampled {
-        Some(list) => for_each_listed_point(voxels, list, window, f),
-        None => for_each_resampled_point(frame, params, masks, voxels, slots, window, f),
+    match revisit {
+        Revisit::Listed(list) => for_each_listed_point(voxels, list, window, f),
+        Revisit::Resampled { by_cube } => {
+            // Without masks every point is in slot 0: the cube is the key.
+            let by_cube = by_cube && masks.is_some();
+            for_each_resampled_point(frame, params, masks, voxels, slots, window, by_cube, f)
+        }
     }
 }
 
@@ -435,7 +492,8 @@ fn for_each_listed_point(
     }
 }
 
-/// [`for_each_voxel_point_in`] by sampling, back-projecting and hashing the points again.
+/// [`for_each_voxel_point_in`] by sampling, back-projecting and hashing the points again; `by_cube`: see
+/// [`Revisit::Resampled`].
 #[allow(clippy::too_many_arguments)]
 fn for_each_resampled_point(
     frame: &Frame<'_>,
@@ -444,6 +502,7 @@ fn for_each_resampled_point(
     voxels: &[Voxel],
     slots: &[u16],
     window: points::PixelWindow,
+    by_cube: bool,
     mut f: impl FnMut(&points::Point, Option<(usize, &Voxel)>),
 ) {
     let r = params.voxel_resolution;
@@ -453,14 +512,39 @@ fn for_each_resampled_point(
         // instructions more per cabinet frame there (its callback no longer inlined), for 1.0 M less in the
         // whole-image pass of the Gaussians.
         points::for_each_position_in(frame, params, window, |p| {
-            f(p, voxel_at(voxels, slots, p.xyz, r, point_slot_called(masks, params, p.u, p.v, &mut slot_cache)));
+            let i = if by_cube {
+                voxel_key(p.xyz, r, 0).and_then(|cube| {
+                    let i = find_cube(voxels, slots, cube)?;
+                    if !voxels.get(i)?.shares_cube() {
+                        return Some(i);
+                    }
+                    let slot = point_slot_called(masks, params, p.u, p.v, &mut slot_cache);
+                    in_slot(cube, slot).and_then(|k| find_voxel(voxels, slots, k))
+                })
+            } else {
+                let slot = point_slot_called(masks, params, p.u, p.v, &mut slot_cache);
+                voxel_key(p.xyz, r, slot).and_then(|k| find_voxel(voxels, slots, k))
+            };
+            f(p, i.and_then(|i| voxels.get(i).map(|v| (i, v))));
         });
         return;
     }
     let mut last = LastVoxel::default();
     points::for_each_position_in(frame, params, window, |p| {
-        let slot = point_slot(masks, params, p.u, p.v, &mut slot_cache);
-        let i = voxel_key(p.xyz, r, slot).and_then(|k| last.find(k, |k| find_voxel(voxels, slots, k)));
+        let i = if by_cube {
+            // The last voxel is kept by cube: the first voxel of the cube in probe order.
+            voxel_key(p.xyz, r, 0).and_then(|cube| {
+                let i = last.find(cube, |c| find_cube(voxels, slots, c))?;
+                if !voxels.get(i)?.shares_cube() {
+                    return Some(i);
+                }
+                let slot = point_slot(masks, params, p.u, p.v, &mut slot_cache);
+                in_slot(cube, slot).and_then(|k| find_voxel(voxels, slots, k))
+            })
+        } else {
+            let slot = point_slot(masks, params, p.u, p.v, &mut slot_cache);
+            voxel_key(p.xyz, r, slot).and_then(|k| last.find(k, |k| find_voxel(voxels, slots, k)))
+        };
         f(p, i.and_then(|i| voxels.get(i).map(|v| (i, v))));
     });
 }
@@ -475,7 +559,7 @@ struct LastVoxel {
 
 impl LastVoxel {
     /// The index of the voxel with `key`: the kept one when the key is its, else `lookup(key)` (kept when found).
-    #[inline]
+    #[inline(always)]
     fn find(&mut self, key: u32, lookup: impl FnOnce(u32) -> Option<usize>) -> Option<usize> {
         match self.hit {
             Some((k, i)) if k == key => Some(i),
@@ -497,6 +581,9 @@ pub struct VoxelStats {
     pub dropped_points: u32,
     /// Inserts refused because every hash slot was taken.
     pub slot_overflows: u32,
+    /// Points in the key range that found no voxel (pool or hash full); of `dropped_points`. While it is 0 every
+    /// point of the frame is in a voxel of its own cube and mask slot ([`Revisit::Resampled`]).
+    pub unplaced_points: u32,
     /// Whether a sampled point of a usable instance (id-image masks) lay outside that instance's bounding box
     /// ([`SlotCache::saw_pixel_outside_box`]).
     pub mask_pixels_outside_boxes: bool,
@@ -550,6 +637,9 @@ fn add_points<const LIST: bool>(
         }
     });
     stats.mask_pixels_outside_boxes = slot_cache.saw_pixel_outside_box();
+    if masks.is_some() {
+        mark_shared_cubes(voxels.as_mut_slice(), slots);
+    }
     // Every point is in: each voxel's sum of offsets becomes its mean.
     for v in voxels.as_mut_slice() {
         let corner = key_corner(v.key, r);
@@ -580,6 +670,7 @@ fn add_point(
     let index = last.find(key, |key| probe_or_insert(key, max_index, voxels, slots, stats));
     let Some(v) = index.and_then(|i| voxels.get_mut(i)) else {
         stats.dropped_points += 1;
+        stats.unplaced_points += 1;
         return None;
     };
     if v.count >= MAX_VOXEL_POINTS {
@@ -604,7 +695,9 @@ fn probe_or_insert(
     slots: &mut [u16],
     stats: &mut VoxelStats,
 ) -> Option<usize> {
-    match pool::probe(slots, key, |i| voxels.get(i).map(|v| v.key)) {
+    // [`probe_voxel`], on the pool itself: through its slice the Cortex-M7's voxel stage took 1.0 M
+    // instructions more per cabinet frame.
+    match pool::probe_hashed(slots, key & CUBE_BITS, key, |i| voxels.get(i).map(|v| v.key)) {
         Probe::Found(i) => Some(i),
         Probe::Vacant(pos) => {
             let mut v = Voxel::zeroed();
@@ -628,6 +721,37 @@ fn probe_or_insert(
         Probe::Full => {
             stats.slot_overflows += 1;
             None
+        }
+    }
+}
+
+/// Marks every voxel whose cube has voxels in other mask slots too ([`Voxel::shares_cube`]). Such a cube has a
+/// voxel outside slot 0, and the voxels of one cube lie in one probe run ([`find_voxel`]): each voxel of a slot
+/// above 0 looks through its run for the others.
+fn mark_shared_cubes(voxels: &mut [Voxel], slots: &[u16]) {
+    for i in 0..voxels.len() {
+        let Some(&v) = voxels.get(i) else { continue };
+        if key_slot(v.key) == 0 || v.shares_cube() {
+            continue;
+        }
+        let cube = v.key & CUBE_BITS;
+        // The other voxels of the cube: at most one per other slot.
+        let (mut others, mut n) = ([0u16; 8], 0);
+        let _ = pool::find_where(slots, cube, |j| {
+            if j != i && voxels.get(j).is_some_and(|o| o.key & CUBE_BITS == cube) {
+                if let Some(o) = others.get_mut(n) {
+                    *o = j as u16;
+                    n += 1;
+                }
+            }
+            false // the whole run
+        });
+        if n > 0 {
+            for &j in others.get(..n).unwrap_or(&[]).iter().chain(&[i as u16]) {
+                if let Some(o) = voxels.get_mut(j as usize) {
+                    o.mark_shared_cube();
+                }
+            }
         }
     }
 }
@@ -1250,9 +1374,7 @@ mod tests {
                     continue;
                 }
                 let Some(key) = pack(x, y, z, slot) else { continue };
-                let Probe::Vacant(pos) = pool::probe(&slots, key, |i| voxels.get(i).map(|v| v.key)) else {
-                    panic!("hash")
-                };
+                let Probe::Vacant(pos) = probe_voxel(&voxels, &slots, key) else { panic!("hash") };
                 voxels[n] =
                     Voxel { key, count: 1 + (k % 7) as u16, mean: [0.001 * k as f32, 0.002, 0.003], ..Voxel::zeroed() };
                 slots[pos] = (n + 1) as u16;
@@ -1292,7 +1414,7 @@ mod tests {
             }
             let z = 40 + (x + 2 * y).rem_euclid(9) / 3;
             let Some(key) = pack(x, y, z, slot) else { continue };
-            let Probe::Vacant(pos) = pool::probe(&slots, key, |i| voxels.get(i).map(|v| v.key)) else { panic!("hash") };
+            let Probe::Vacant(pos) = probe_voxel(&voxels, &slots, key) else { panic!("hash") };
             let corner = key_corner(key, r);
             let off = [0.2 + 0.6 * ((k * 7) % 10) as f32 / 10.0, 0.5, 0.3 + 0.4 * ((k * 3) % 10) as f32 / 10.0];
             let mean = [corner[0] + off[0] * r, corner[1] + off[1] * r, corner[2] + off[2] * r];
