@@ -258,12 +258,15 @@ fn adhesion_and_semantic_consistency_counted_by_hand() {
 
 /// A pass that samples the points again finds each point's voxel by its cube first and looks its mask slot up
 /// only where several slots' voxels share the cube (`Revisit::Resampled { by_cube: true }`): the same voxel for
-/// every point as the lookup by slot, with masks as an id image and as overlapping bit planes; and a voxel is
-/// marked as sharing its cube exactly when another voxel has the same cube.
+/// every point as the lookup by slot, with masks as an id image and as overlapping bit planes; and voxelisation
+/// without a list of the points (the mcu profile's) marks a voxel as sharing its cube exactly when another voxel
+/// has the same cube.
 #[test]
 fn points_found_by_cube_are_in_the_voxels_of_their_mask_slot() {
+    use bytemuck::Zeroable;
     use m2smap::masks::{FrameMasks, Pixels};
-    use m2smap_core::supervoxel::{for_each_voxel_point, unpack};
+    use m2smap_core::pool::Bounded;
+    use m2smap_core::supervoxel::{for_each_voxel_point, unpack, voxelize, Voxel};
     for name in ["tabletop", "clutter", "kitchen"] {
         let scene = Scene::named(name).unwrap();
         let frame = scene.render(0, Some(1));
@@ -281,12 +284,17 @@ fn points_found_by_cube_are_in_the_voxels_of_their_mask_slot() {
         first.iter_mut().zip(&rest[..plane]).for_each(|(a, b)| *a |= b);
         let overlapping = FrameMasks { pixels: Pixels::Bits(bits), ..ids_masks.clone() };
         for masks in [&ids_masks, &overlapping] {
-            let mut storage = bytemuck::zeroed_box::<HostStorage>();
-            let mut mapper = Mapper::new(&mut *storage, Params::default()).unwrap();
-            let checked = mapper.check(frame.frame.view(&scene.camera), Some(masks.view())).unwrap();
-            mapper.stage_voxels(&checked);
-            assert_eq!(mapper.report().dropped_points, 0, "{name}");
-            let voxels = mapper.voxels();
+            // Voxelised without a list of the points (as the mcu profile), so the shared cubes are marked.
+            let params = Params::default();
+            let view = masks.view();
+            let depth = frame.frame.view(&scene.camera);
+            let (mut voxel_store, mut slots) = (vec![Voxel::zeroed(); 40_000], vec![0u16; 1 << 17]);
+            let mut voxel_pool = Bounded::new(&mut voxel_store);
+            let mut no_list = Bounded::new(&mut []);
+            let stats = voxelize(&depth, &params, Some(&view), &mut voxel_pool, &mut slots, &mut no_list);
+            assert_eq!((stats.dropped_points, stats.unplaced_points), (0, 0), "{name}");
+            assert!(stats.shared_cubes_marked, "{name}");
+            let voxels = voxel_pool.as_slice();
             let cube = |key: u32| {
                 let (x, y, z) = unpack(key);
                 (x, y, z)
@@ -298,12 +306,10 @@ fn points_found_by_cube_are_in_the_voxels_of_their_mask_slot() {
                 shared += others as usize;
             }
             assert!(shared >= 20, "{name}: {shared} voxels share their cube");
-            let view = masks.view();
             let visit = |by_cube: bool| {
                 let mut seen = Vec::new();
                 let revisit = Revisit::Resampled { by_cube };
-                let slots = mapper.voxel_slots();
-                for_each_voxel_point(checked.frame(), mapper.params(), Some(&view), voxels, slots, revisit, |p, v| {
+                for_each_voxel_point(&depth, &params, Some(&view), voxels, &slots, revisit, |p, v| {
                     seen.push((p.u, p.v, v.map(|(i, _)| i)))
                 });
                 seen
@@ -412,27 +418,18 @@ fn mask_hits_from_voxels_are_the_pixel_counts() {
             let listed = Revisit::Listed(listed.unwrap());
             let a =
                 count_hits(args.0, &split, Some(&split), within, args.1, args.2, listed, args.3, &mut fast, &params);
-            let slow_count = |by_cube: bool, hits: &mut [MaskHit]| {
-                count_hits(
-                    args.0,
-                    &by_pixels_masks,
-                    Some(&split),
-                    within,
-                    args.1,
-                    args.2,
-                    Revisit::Resampled { by_cube },
-                    args.3,
-                    hits,
-                    &params,
-                )
-            };
-            let b = slow_count(false, &mut slow);
-            // Sampled again and found by cube first (no point of the frame was refused a voxel): the same counts.
-            assert_eq!(mapper.report().dropped_points, 0, "{name}");
-            let mut by_cube = vec![zero; 4096];
-            let c = slow_count(true, &mut by_cube);
-            assert_eq!((c.hit_pairs, c.hit_overflows, c.by_voxels), (b.hit_pairs, b.hit_overflows, b.by_voxels));
-            assert_eq!(by_cube, slow, "{name}: hits found by cube");
+            let b = count_hits(
+                args.0,
+                &by_pixels_masks,
+                Some(&split),
+                within,
+                args.1,
+                args.2,
+                Revisit::Resampled { by_cube: false },
+                args.3,
+                &mut slow,
+                &params,
+            );
             assert_eq!(a.by_voxels, shortcut, "{name}: shortcut taken");
             assert!(!b.by_voxels);
             let mut inside = 0;

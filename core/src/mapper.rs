@@ -426,7 +426,7 @@ impl<'s> Mapper<'s> {
         self.report.voxel_resolution_m = self.params.voxel_resolution;
         self.sampled_complete = self.sampled.capacity() > 0 && self.sampled.usage().overflow_events == 0;
         self.sampled_from = depth_buffer(&checked.frame);
-        self.by_cube = stats.unplaced_points == 0;
+        self.by_cube = stats.unplaced_points == 0 && stats.shared_cubes_marked;
         self.masks_within_boxes = voxel_masks.is_some_and(|m| matches!(m.pixels, crate::masks::MaskPixels::IdImage(_)))
             && !stats.mask_pixels_outside_boxes;
         self.report.voxel_range_m = self.params.depth_max;

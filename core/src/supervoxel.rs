@@ -101,7 +101,8 @@ impl Voxel {
         [0, 1, 2].map(|k| ((packed >> (k * COLOUR_SUM_BITS)) & field) as u32)
     }
 
-    /// Whether another voxel of the frame has the same cube in another mask slot (set by [`voxelize`]).
+    /// Whether another voxel of the frame has the same cube in another mask slot (set by [`voxelize`] when
+    /// [`VoxelStats::shared_cubes_marked`]).
     #[inline]
     pub fn shares_cube(&self) -> bool {
         self.colour_sum[1] & SHARED_CUBE_BIT != 0
@@ -255,7 +256,7 @@ pub fn key_corner(key: u32, resolution: f32) -> Vec3 {
 /// slot, [`probe_voxel`]), so the voxels of one cube in different slots lie in one probe run.
 #[inline(always)]
 pub fn find_voxel(voxels: &[Voxel], slots: &[u16], key: u32) -> Option<usize> {
-    pool::find_where(slots, key & CUBE_BITS, |i| voxels.get(i).is_some_and(|v| v.key == key))
+    pool::find_where(slots, key & CUBE_BITS, |i| voxels.get(i).map(|v| v.key) == Some(key))
 }
 
 /// Index of the first voxel, in probe order, of the cube of `cube_key` (a key of slot 0) in any mask slot.
@@ -417,9 +418,10 @@ pub const NO_VOXEL: u16 = u16::MAX;
 pub enum Revisit<'a> {
     /// Voxelisation's complete list of the frame's points ([`SampledPoint`]).
     Listed(&'a [SampledPoint]),
-    /// The points are sampled, back-projected and hashed again. `by_cube`: every sampled point of this frame
-    /// found its voxel ([`VoxelStats::unplaced_points`] was 0, the frame is the one voxelised, with the same
-    /// range and voxel edge), so a point whose cube has one voxel only is in it whatever its mask slot, and
+    /// The points are sampled, back-projected and hashed again. `by_cube` (only when voxelisation marked the
+    /// shared cubes, [`VoxelStats::shared_cubes_marked`], and every sampled point of this frame found its voxel,
+    /// [`VoxelStats::unplaced_points`] 0; the frame the one voxelised, with the same range and voxel edge): a
+    /// point whose cube has one voxel only is in it whatever its mask slot, and
     /// only the points of cubes shared by several slots ([`Voxel::shares_cube`]) look their slot up in the
     /// masks (measured on the Cortex-M7: a bit-plane slot lookup is about 45 instructions a point).
     Resampled {
@@ -584,6 +586,9 @@ pub struct VoxelStats {
     /// Points in the key range that found no voxel (pool or hash full); of `dropped_points`. While it is 0 every
     /// point of the frame is in a voxel of its own cube and mask slot ([`Revisit::Resampled`]).
     pub unplaced_points: u32,
+    /// Whether the voxels that share their cube with another mask slot's are marked ([`Voxel::shares_cube`]);
+    /// not when the frame came without masks or every point is listed ([`SampledPoint`]).
+    pub shared_cubes_marked: bool,
     /// Whether a sampled point of a usable instance (id-image masks) lay outside that instance's bounding box
     /// ([`SlotCache::saw_pixel_outside_box`]).
     pub mask_pixels_outside_boxes: bool,
@@ -637,8 +642,11 @@ fn add_points<const LIST: bool>(
         }
     });
     stats.mask_pixels_outside_boxes = slot_cache.saw_pixel_outside_box();
-    if masks.is_some() {
+    // The marks serve the passes that sample again only: a complete list of the points spares them.
+    let listed = LIST && sampled.usage().overflow_events == 0;
+    if masks.is_some() && !listed {
         mark_shared_cubes(voxels.as_mut_slice(), slots);
+        stats.shared_cubes_marked = true;
     }
     // Every point is in: each voxel's sum of offsets becomes its mean.
     for v in voxels.as_mut_slice() {
