@@ -256,6 +256,24 @@ fn adhesion_and_semantic_consistency_counted_by_hand() {
     assert_eq!(fusion_metrics(std::iter::empty()), Default::default());
 }
 
+/// The instances of id-image masks as bit planes: disjoint, and overlapping (instance 0 also covers instance
+/// 1's pixels).
+fn bit_plane_masks(ids_masks: &m2smap::masks::FrameMasks) -> (m2smap::masks::FrameMasks, m2smap::masks::FrameMasks) {
+    use m2smap::masks::{FrameMasks, Pixels};
+    let Pixels::Ids(ids) = &ids_masks.pixels else { panic!("the masks are an id image") };
+    let plane = m2smap_core::MaskSet::plane_bytes(ids_masks.width, ids_masks.height);
+    let mut bits = vec![0u8; plane * ids_masks.instances.len()];
+    for (k, inst) in ids_masks.instances.iter().enumerate() {
+        for (i, _) in ids.iter().enumerate().filter(|(_, &id)| id == inst.id) {
+            bits[k * plane + i / 8] |= 1 << (i % 8);
+        }
+    }
+    let disjoint = FrameMasks { pixels: Pixels::Bits(bits.clone()), ..ids_masks.clone() };
+    let (first, rest) = bits.split_at_mut(plane);
+    first.iter_mut().zip(&rest[..plane]).for_each(|(a, b)| *a |= b);
+    (disjoint, FrameMasks { pixels: Pixels::Bits(bits), ..ids_masks.clone() })
+}
+
 /// A pass that samples the points again finds each point's voxel by its cube first and looks its mask slot up
 /// only where several slots' voxels share the cube (`Revisit::Resampled { by_cube: true }`): the same voxel for
 /// every point as the lookup by slot, with masks as an id image and as overlapping bit planes; and voxelisation
@@ -264,25 +282,13 @@ fn adhesion_and_semantic_consistency_counted_by_hand() {
 #[test]
 fn points_found_by_cube_are_in_the_voxels_of_their_mask_slot() {
     use bytemuck::Zeroable;
-    use m2smap::masks::{FrameMasks, Pixels};
     use m2smap_core::pool::Bounded;
     use m2smap_core::supervoxel::{for_each_voxel_point, unpack, voxelize, Voxel};
     for name in ["tabletop", "clutter", "kitchen"] {
         let scene = Scene::named(name).unwrap();
         let frame = scene.render(0, Some(1));
         let ids_masks = scene.perfect_masks(&frame, &mut LabelTable::default());
-        let Pixels::Ids(ids) = &ids_masks.pixels else { panic!("perfect masks are an id image") };
-        let plane = m2smap_core::MaskSet::plane_bytes(ids_masks.width, ids_masks.height);
-        let mut bits = vec![0u8; plane * ids_masks.instances.len()];
-        for (k, inst) in ids_masks.instances.iter().enumerate() {
-            for (i, _) in ids.iter().enumerate().filter(|(_, &id)| id == inst.id) {
-                bits[k * plane + i / 8] |= 1 << (i % 8);
-            }
-        }
-        // Instance 0 also covers instance 1's pixels.
-        let (first, rest) = bits.split_at_mut(plane);
-        first.iter_mut().zip(&rest[..plane]).for_each(|(a, b)| *a |= b);
-        let overlapping = FrameMasks { pixels: Pixels::Bits(bits), ..ids_masks.clone() };
+        let (_, overlapping) = bit_plane_masks(&ids_masks);
         for masks in [&ids_masks, &overlapping] {
             // Voxelised without a list of the points (as the mcu profile), so the shared cubes are marked.
             let params = Params::default();
@@ -342,18 +348,7 @@ fn mask_hits_from_voxels_are_the_pixel_counts() {
         let ids_masks = scene.perfect_masks(&frame, &mut LabelTable::default());
         let Pixels::Ids(ids) = &ids_masks.pixels else { panic!("perfect masks are an id image") };
         let width = ids_masks.width as usize;
-        let plane = m2smap_core::MaskSet::plane_bytes(ids_masks.width, ids_masks.height);
-        let mut bits = vec![0u8; plane * ids_masks.instances.len()];
-        for (k, inst) in ids_masks.instances.iter().enumerate() {
-            for (i, _) in ids.iter().enumerate().filter(|(_, &id)| id == inst.id) {
-                bits[k * plane + i / 8] |= 1 << (i % 8);
-            }
-        }
-        let disjoint = FrameMasks { pixels: Pixels::Bits(bits.clone()), ..ids_masks.clone() };
-        // Instance 0 also covers instance 1's pixels.
-        let (first, rest) = bits.split_at_mut(plane);
-        first.iter_mut().zip(&rest[..plane]).for_each(|(a, b)| *a |= b);
-        let overlapping = FrameMasks { pixels: Pixels::Bits(bits), ..ids_masks.clone() };
+        let (disjoint, overlapping) = bit_plane_masks(&ids_masks);
         // Every instance in four column bands of its box (ids 4a … 4a + 3), boxes from the pixels.
         let mut band_ids = ids.clone();
         let mut band_instances: Vec<m2smap_core::Instance> = Vec::new();

@@ -1190,11 +1190,11 @@ impl<'s> Mapper<'s> {
             self.voxel_masks(checked).as_ref(),
             self.voxels.as_slice(),
             self.slots,
-            match self.sampled_points(&checked.frame) {
-                Some(list) => supervoxel::Revisit::Listed(list),
-                None => supervoxel::Revisit::Resampled {
-                    by_cube: self.by_cube && self.sampled_from == depth_buffer(&checked.frame),
-                },
+            // The list and the cube marks serve the frame they were made from only.
+            if self.sampled_from == depth_buffer(&checked.frame) {
+                revisit(&self.sampled, self.sampled_complete, self.by_cube)
+            } else {
+                supervoxel::Revisit::Resampled { by_cube: false }
             },
             |p, v| f(p, v.map(|(_, v)| v)),
         );

@@ -516,12 +516,10 @@ fn for_each_resampled_point(
         points::for_each_position_in(frame, params, window, |p| {
             let i = if by_cube {
                 voxel_key(p.xyz, r, 0).and_then(|cube| {
-                    let i = find_cube(voxels, slots, cube)?;
-                    if !voxels.get(i)?.shares_cube() {
-                        return Some(i);
-                    }
-                    let slot = point_slot_called(masks, params, p.u, p.v, &mut slot_cache);
-                    in_slot(cube, slot).and_then(|k| find_voxel(voxels, slots, k))
+                    let first = find_cube(voxels, slots, cube);
+                    voxel_by_cube(voxels, slots, cube, first, || {
+                        point_slot_called(masks, params, p.u, p.v, &mut slot_cache)
+                    })
                 })
             } else {
                 let slot = point_slot_called(masks, params, p.u, p.v, &mut slot_cache);
@@ -536,12 +534,8 @@ fn for_each_resampled_point(
         let i = if by_cube {
             // The last voxel is kept by cube: the first voxel of the cube in probe order.
             voxel_key(p.xyz, r, 0).and_then(|cube| {
-                let i = last.find(cube, |c| find_cube(voxels, slots, c))?;
-                if !voxels.get(i)?.shares_cube() {
-                    return Some(i);
-                }
-                let slot = point_slot(masks, params, p.u, p.v, &mut slot_cache);
-                in_slot(cube, slot).and_then(|k| find_voxel(voxels, slots, k))
+                let first = last.find(cube, |c| find_cube(voxels, slots, c));
+                voxel_by_cube(voxels, slots, cube, first, || point_slot(masks, params, p.u, p.v, &mut slot_cache))
             })
         } else {
             let slot = point_slot(masks, params, p.u, p.v, &mut slot_cache);
@@ -549,6 +543,24 @@ fn for_each_resampled_point(
         };
         f(p, i.and_then(|i| voxels.get(i).map(|v| (i, v))));
     });
+}
+
+/// The voxel of a point in the cube of `cube_key` (a key of slot 0) whose first voxel in probe order is `first`
+/// ([`find_cube`]), by cube first ([`Revisit::Resampled`]): that voxel unless its cube is shared by several mask
+/// slots, then the voxel of the point's own slot, `slot()`, which is looked up only then.
+#[inline(always)]
+fn voxel_by_cube(
+    voxels: &[Voxel],
+    slots: &[u16],
+    cube_key: u32,
+    first: Option<usize>,
+    slot: impl FnOnce() -> u32,
+) -> Option<usize> {
+    let i = first?;
+    if !voxels.get(i)?.shares_cube() {
+        return Some(i);
+    }
+    in_slot(cube_key, slot()).and_then(|k| find_voxel(voxels, slots, k))
 }
 
 /// The voxel the previous point of a pass fell into: the next point of its row is in it 41 % of the time
