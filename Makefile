@@ -104,6 +104,8 @@ firmware:
 		[ -n "$$hw" ] && [ "$$hw" -le "$$reserve" ] || { echo "firmware: FAILED: stack high-water $$hw bytes > the $$reserve-byte reserve"; exit 1; }
 	@grep -q '^floor self-check: the core.s floor equals libm.s on [0-9]* values' target/fw-run.txt || \
 		{ echo "firmware: FAILED: the floor self-check did not pass (or did not run)"; exit 1; }
+	@grep -q '^spread self-check: the core.s spread update equals the portable one on [0-9]* points' target/fw-run.txt || \
+		{ echo "firmware: FAILED: the spread self-check did not pass (or did not run)"; exit 1; }
 	@grep -qx 'heap allocations during process: 0' target/fw-run.txt || \
 		{ echo "firmware: FAILED: the core allocated on the heap during process (or the count is missing)"; exit 1; }
 	@echo "firmware: the Cortex-M7 maps, world deltas and segmenter masks equal the host's byte for byte ($$(grep -c '^frame [0-9]* map' target/fw-run.txt) frames); 0 heap allocations during process"

@@ -32,6 +32,7 @@
 //! one Gaussian as long as there are no more supervoxels than the pool holds.
 
 use bytemuck::Zeroable;
+use m2smap_fpu::SpreadSums;
 
 use crate::frame::Frame;
 use crate::linalg::{self, Moments, Sym3, Vec3};
@@ -222,21 +223,15 @@ pub fn point_statistics(
 ) {
     supervoxel::for_each_voxel_point(frame, params, voxel_masks, voxels, slots, revisit, |p, v| {
         let Some(g) = v.and_then(|(_, v)| gaussians.get_mut(v.gaussian as usize)) else { return };
-        let d = linalg::sub(p.xyz, g.mean);
-        let c = &mut g.covariance;
-        c[0] += d[0] * d[0];
-        c[1] += d[0] * d[1];
-        c[2] += d[0] * d[2];
-        c[3] += d[1] * d[1];
-        c[4] += d[1] * d[2];
-        c[5] += d[2] * d[2];
-        g.bbox_min = linalg::min_elem(g.bbox_min, p.xyz);
-        g.bbox_max = linalg::max_elem(g.bbox_max, p.xyz);
-        let b = &mut g.pixel_bbox;
-        b[0] = b[0].min(p.u);
-        b[1] = b[1].min(p.v);
-        b[2] = b[2].max(p.u);
-        b[3] = b[3].max(p.v);
+        // Covariance sums about the mean, support box and pixel box (on the Cortex-M7 by load/store multiple:
+        // m2smap-fpu, feature `vldm`).
+        let sums = SpreadSums {
+            covariance: &mut g.covariance,
+            bbox_min: &mut g.bbox_min,
+            bbox_max: &mut g.bbox_max,
+            pixel_bbox: &mut g.pixel_bbox,
+        };
+        m2smap_fpu::add_to_spread(sums, &g.mean, p.xyz, p.u, p.v);
     });
     for g in gaussians.iter_mut() {
         let k = if g.count > 1 { 1.0 / (g.count - 1) as f32 } else { 0.0 };

@@ -182,6 +182,58 @@ fn check_floor() {
     defmt::println!("floor self-check: the core's floor equals libm's on {=u32} values", checked);
 }
 
+/// The core's per-point spread update (load/store multiple here, feature `vldm`) against the portable path
+/// compiled for this core, bit for bit, over random points, means and sums mixed with edge values (±0, equal
+/// coordinates, tiny and huge magnitudes, the pixel range's ends): the maps would show a difference only in
+/// some Gaussian's covariance or box.
+fn check_spread() {
+    const EDGES: [f32; 8] = [0.0, -0.0, 1.0, -1.0, 1.0e-30, -3.0e30, 0.5, 2.75];
+    let mut state = 0x9e37_79b9u32;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        state
+    };
+    let value = |next: &mut dyn FnMut() -> u32| {
+        let r = next();
+        match r % 4 {
+            0 => EDGES.get((r >> 8) as usize % EDGES.len()).copied().unwrap_or(0.0),
+            _ => ((r >> 2) as i32 as f32) * 1.0e-9,
+        }
+    };
+    let mut checked = 0u32;
+    for _ in 0..20_000 {
+        let mut f = || value(&mut next);
+        let mean = [f(), f(), f()];
+        let p = [f(), f(), f()];
+        let covariance = [f(), f(), f(), f(), f(), f()];
+        let bbox_min = [f(), f(), f()];
+        let bbox_max = [f(), f(), f()];
+        let r = next();
+        let (u, v) = ((r & 0xffff) as u16, (r >> 16) as u16);
+        let r = next();
+        let pixel_bbox = [(r & 0xffff) as u16, (r >> 16) as u16, u16::MAX - (r & 0xff) as u16, (r & 0x7fff) as u16];
+        let mut a = (covariance, bbox_min, bbox_max, pixel_bbox);
+        let mut b = a;
+        fn sums(s: &mut ([f32; 6], [f32; 3], [f32; 3], [u16; 4])) -> m2smap_fpu::SpreadSums<'_> {
+            let (covariance, bbox_min, bbox_max, pixel_bbox) = s;
+            m2smap_fpu::SpreadSums { covariance, bbox_min, bbox_max, pixel_bbox }
+        }
+        m2smap_fpu::add_to_spread(sums(&mut a), core::hint::black_box(&mean), core::hint::black_box(p), u, v);
+        m2smap_fpu::add_to_spread_portable(sums(&mut b), &mean, p, u, v);
+        let bits = |s: &([f32; 6], [f32; 3], [f32; 3], [u16; 4])| {
+            (s.0.map(f32::to_bits), s.1.map(f32::to_bits), s.2.map(f32::to_bits), s.3)
+        };
+        if bits(&a) != bits(&b) {
+            defmt::error!("spread of point {=[?]} mean {=[?]}", p.map(f32::to_bits), mean.map(f32::to_bits));
+            fail("the core's spread update differs from the portable one");
+        }
+        checked += 1;
+    }
+    defmt::println!("spread self-check: the core's spread update equals the portable one on {=u32} points", checked);
+}
+
 fn fail(what: &str) -> ! {
     defmt::error!("error: {=str}", what);
     exit_failure()
@@ -330,6 +382,7 @@ fn main() -> ! {
     );
 
     check_floor();
+    check_spread();
 
     // SAFETY: `main` runs once and is the only user of STORAGE; all-zero bytes are a valid McuStorage.
     let storage: &'static mut McuStorage = unsafe { (*addr_of_mut!(STORAGE)).assume_init_mut() };

@@ -87,6 +87,131 @@ pub fn floor_i32(x: f32) -> i32 {
     }
 }
 
+/// The running sums of a point set's spread about a known mean, which [`add_to_spread`] adds one point to: where
+/// they live is the caller's (the fields of a Gaussian, say).
+#[derive(Debug)]
+pub struct SpreadSums<'a> {
+    /// Σ d dᵀ over the points so far, d = p − mean, as `[xx, xy, xz, yy, yz, zz]`, m².
+    pub covariance: &'a mut [f32; 6],
+    /// Minimum corner of the points' axis-aligned box, metres.
+    pub bbox_min: &'a mut [f32; 3],
+    /// Maximum corner of the points' axis-aligned box, metres.
+    pub bbox_max: &'a mut [f32; 3],
+    /// The points' pixel box `[u0, v0, u1, v1]`, inclusive, pixels.
+    pub pixel_bbox: &'a mut [u16; 4],
+}
+
+/// Adds point `p` (metres) seen at pixel (`u`, `v`) to `sums`, the spread about `mean`: each covariance sum
+/// gains its product of d = p − mean (the product rounded, then the sum: no fused multiply-add), each box corner
+/// takes `f32::min` / `f32::max` with p, and the pixel box takes (`u`, `v`) in. The same bits on every target.
+#[inline(always)]
+pub fn add_to_spread(sums: SpreadSums<'_>, mean: &[f32; 3], p: [f32; 3], u: u16, v: u16) {
+    #[cfg(all(feature = "vldm", target_arch = "arm"))]
+    {
+        let SpreadSums { covariance, bbox_min, bbox_max, pixel_bbox } = sums;
+        // SAFETY: every pointer comes from a reference of its array's length: `vldmia`/`vstmia` read and write
+        // exactly those words (f32 arrays are word-aligned); nothing else in memory is touched, nor the stack.
+        // `vsub`, `vmla` (not fused: the product is rounded, then added, as Rust's `a + b * c`) and
+        // `vminnm`/`vmaxnm` (IEEE-754 minNum/maxNum, which is what `f32::min`/`max` compile to on this core)
+        // compute what the portable path does. s0–s8 are clobbered and declared so. The feature is only for a
+        // core with an FPv5 unit (`vminnm`), such as the Cortex-M7 (see the crate docs).
+        unsafe {
+            core::arch::asm!(
+                "vldmia {mean}, {{s0-s2}}",
+                "vsub.f32 s0, {x}, s0",
+                "vsub.f32 s1, {y}, s1",
+                "vsub.f32 s2, {z}, s2",
+                "vldmia {cov}, {{s3-s8}}",
+                "vmla.f32 s3, s0, s0",
+                "vmla.f32 s4, s0, s1",
+                "vmla.f32 s5, s0, s2",
+                "vmla.f32 s6, s1, s1",
+                "vmla.f32 s7, s1, s2",
+                "vmla.f32 s8, s2, s2",
+                "vstmia {cov}, {{s3-s8}}",
+                "vldmia {lo}, {{s0-s2}}",
+                "vldmia {hi}, {{s3-s5}}",
+                "vminnm.f32 s0, s0, {x}",
+                "vminnm.f32 s1, s1, {y}",
+                "vminnm.f32 s2, s2, {z}",
+                "vmaxnm.f32 s3, s3, {x}",
+                "vmaxnm.f32 s4, s4, {y}",
+                "vmaxnm.f32 s5, s5, {z}",
+                "vstmia {lo}, {{s0-s2}}",
+                "vstmia {hi}, {{s3-s5}}",
+                mean = in(reg) mean.as_ptr(),
+                cov = in(reg) covariance.as_mut_ptr(),
+                lo = in(reg) bbox_min.as_mut_ptr(),
+                hi = in(reg) bbox_max.as_mut_ptr(),
+                x = in(sreg) p[0],
+                y = in(sreg) p[1],
+                z = in(sreg) p[2],
+                out("s0") _, out("s1") _, out("s2") _, out("s3") _, out("s4") _,
+                out("s5") _, out("s6") _, out("s7") _, out("s8") _,
+                options(nostack, preserves_flags)
+            );
+        }
+        add_to_pixel_box(pixel_bbox, u, v);
+    }
+    #[cfg(not(all(feature = "vldm", target_arch = "arm")))]
+    add_to_spread_portable(sums, mean, p, u, v);
+}
+
+/// [`add_to_spread`] in plain Rust, whatever the features: the path of every target but the `vldm` one, and the
+/// reference its self-check compares with (`make firmware`).
+#[inline(always)]
+pub fn add_to_spread_portable(sums: SpreadSums<'_>, mean: &[f32; 3], p: [f32; 3], u: u16, v: u16) {
+    let SpreadSums { covariance: c, bbox_min, bbox_max, pixel_bbox: b } = sums;
+    let d = [p[0] - mean[0], p[1] - mean[1], p[2] - mean[2]];
+    c[0] += d[0] * d[0];
+    c[1] += d[0] * d[1];
+    c[2] += d[0] * d[2];
+    c[3] += d[1] * d[1];
+    c[4] += d[1] * d[2];
+    c[5] += d[2] * d[2];
+    for k in 0..3 {
+        bbox_min[k] = bbox_min[k].min(p[k]);
+        bbox_max[k] = bbox_max[k].max(p[k]);
+    }
+    b[0] = b[0].min(u);
+    b[1] = b[1].min(v);
+    b[2] = b[2].max(u);
+    b[3] = b[3].max(v);
+}
+
+/// The pixel box `[u0, v0, u1, v1]` grown to hold (`u`, `v`), by halfword SIMD.
+#[cfg(all(feature = "vldm", target_arch = "arm"))]
+#[inline(always)]
+fn add_to_pixel_box(b: &mut [u16; 4], u: u16, v: u16) {
+    if (b.as_ptr() as usize) % 4 == 0 {
+        let uv = u as u32 | (v as u32) << 16;
+        // SAFETY: the two words are the array's eight bytes, word-aligned (tested above). `usub16` sets the APSR's
+        // GE bits per halfword (declared: no `preserves_flags`) and `sel` picks per halfword by them: the
+        // unsigned minimum of (u0, v0) and (u, v), and the maximum of (u1, v1) and (u, v). Nothing else is touched.
+        unsafe {
+            core::arch::asm!(
+                "ldrd {lo}, {hi}, [{b}]",
+                "usub16 {t}, {lo}, {uv}",
+                "sel {lo}, {uv}, {lo}",
+                "usub16 {t}, {uv}, {hi}",
+                "sel {hi}, {uv}, {hi}",
+                "strd {lo}, {hi}, [{b}]",
+                b = in(reg) b.as_mut_ptr(),
+                uv = in(reg) uv,
+                lo = out(reg) _,
+                hi = out(reg) _,
+                t = out(reg) _,
+                options(nostack)
+            );
+        }
+        return;
+    }
+    b[0] = b[0].min(u);
+    b[1] = b[1].min(v);
+    b[2] = b[2].max(u);
+    b[3] = b[3].max(v);
+}
+
 #[cfg(test)]
 mod tests {
     use super::{floor_i32, sqrt};
