@@ -323,43 +323,37 @@ fn walk_points<const COLOUR: bool>(
     let n_rows = (window.v1 as usize + 1).saturating_sub(first_row);
     let walk = if walk == Walk::Table && !sampler.in_table() { Walk::Pixels } else { walk };
     for (v, (row, rgb_row)) in rows.skip(first_row).take(n_rows) {
-        let mut emit = |u: usize| emit_point::<COLOUR>(frame, row, rgb_row, u, v, &mut f);
         let span = row.get(u0..=u1).unwrap_or(&[]);
-        if walk == Walk::Table {
-            for (b, block) in span.chunks(BLOCK).enumerate() {
-                let first = u0 + b * BLOCK;
-                let word = sampler.table_word(sampler.index((v * w + first) as u32));
-                let mut mask = word & (u32::MAX >> (BLOCK - block.len()));
-                while mask != 0 {
-                    let j = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    if block.get(j).is_some_and(|&raw| raw >= lo && raw <= hi) {
-                        emit(first + j);
-                    }
-                }
-            }
-        } else if walk == Walk::Blocks {
-            for (b, block) in span.chunks(BLOCK).enumerate() {
-                let first = u0 + b * BLOCK;
-                let base = sampler.index((v * w + first) as u32);
+        // Each way gives a block's keep bits; one loop visits them, so that `f` is inlined at one place only
+        // (at two, the Cortex-M7 called it per point: about 20 instructions a point for its entry and exit).
+        for (b, block) in span.chunks(BLOCK).enumerate() {
+            let first = u0 + b * BLOCK;
+            let base = sampler.index((v * w + first) as u32);
+            let mut mask = match walk {
+                // The table's bits are the sample's alone: the depth is tested below.
+                Walk::Table => sampler.table_word(base) & (u32::MAX >> (BLOCK - block.len())),
                 // Only the block where the sample indices reach the frame's pixel count wraps them (one per
                 // frame at most): the others keep the loop without the wrap (1 M fewer instructions per pass).
-                let mut mask = if base.saturating_add(BLOCK as u32) > sampler.pixels {
+                Walk::Blocks if base.saturating_add(BLOCK as u32) > sampler.pixels => {
                     block_mask(block, (lo, hi), |j| sampler.keeps(sampler.wrap(base + j)))
-                } else {
-                    block_mask(block, (lo, hi), |j| sampler.keeps(base + j))
-                };
-                while mask != 0 {
-                    let u = first + mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    emit(u);
                 }
-            }
-        } else {
-            let base = sampler.index((v * w + u0) as u32);
-            for (j, &raw) in span.iter().enumerate() {
-                if raw >= lo && raw <= hi && sampler.keeps(sampler.wrap(base + j as u32)) {
-                    emit(u0 + j);
+                Walk::Blocks => block_mask(block, (lo, hi), |j| sampler.keeps(base + j)),
+                Walk::Pixels => {
+                    let mut mask = 0u32;
+                    for ((&raw, &bit), j) in block.iter().zip(&BLOCK_BITS).zip(0u32..) {
+                        if raw >= lo && raw <= hi && sampler.keeps(sampler.wrap(base + j)) {
+                            mask |= bit;
+                        }
+                    }
+                    mask
+                }
+            };
+            while mask != 0 {
+                let j = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                // The depth test of the table's bits (the other ways have made it: true again).
+                if block.get(j).is_some_and(|&raw| raw >= lo && raw <= hi) {
+                    emit_point::<COLOUR>(frame, row, rgb_row, first + j, v, &mut f);
                 }
             }
         }
@@ -378,8 +372,8 @@ fn block_mask(block: &[u16], (lo, hi): (u16, u16), keeps: impl Fn(u32) -> bool) 
     mask
 }
 
-/// The point of pixel `u` of row `v` (`row`, `rgb_row` its depths and colours) to `f`. Inlined into each way of
-/// [`walk_points`], so that `f` is inlined into each loop (as a closure called from the three, it was one
+/// The point of pixel `u` of row `v` (`row`, `rgb_row` its depths and colours) to `f`. Inlined into the one
+/// loop of [`walk_points`], so that `f` is inlined there (as a closure called from several places, it was one
 /// function called per point on the Cortex-M7).
 #[inline(always)]
 fn emit_point<const COLOUR: bool>(
