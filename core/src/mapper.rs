@@ -15,7 +15,7 @@ use crate::params::Params;
 use crate::plane::PLANE_GRID;
 use crate::plane::{self, Plane};
 use crate::points::{PixelWindow, Point};
-use crate::pool::{Bounded, PoolId, PoolUsage};
+use crate::pool::{self, Bounded, PoolId, PoolUsage};
 use crate::profile::Profile;
 use crate::segment;
 use crate::snapshot;
@@ -248,7 +248,7 @@ impl<'s> Mapper<'s> {
             voxel_resolution: params.voxel_resolution,
             max_pixels: P::MAX_PIXELS,
             voxels: Bounded::new(parts.voxels),
-            slots: parts.slots,
+            slots: pool::power_of_two_part(parts.slots),
             scratch: parts.scratch,
             seeds: Bounded::new(parts.seeds),
             supervoxels: Bounded::new(parts.supervoxels),

