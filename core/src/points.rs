@@ -351,8 +351,11 @@ fn walk_points<const COLOUR: bool>(
             while mask != 0 {
                 let j = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                // The depth test of the table's bits (the other ways have made it: true again).
-                if block.get(j).is_some_and(|&raw| raw >= lo && raw <= hi) {
+                // The depth test of the table's bits, which the other ways have made: the blockwise way (where
+                // it is the only one, a constant) skips it; telling the others apart per point cost the Cortex-M7
+                // more than testing again.
+                let tested = BLOCKWISE && walk == Walk::Blocks;
+                if tested || block.get(j).is_some_and(|&raw| raw >= lo && raw <= hi) {
                     emit_point::<COLOUR>(frame, row, rgb_row, first + j, v, &mut f);
                 }
             }
