@@ -337,6 +337,25 @@ mod tests {
         slots
     }
 
+    /// A table's power-of-two part and mask: the largest power of two of slots from the start, whose mask
+    /// keeps every bucket inside it.
+    #[test]
+    fn power_of_two_part_and_mask() {
+        for (n, part) in [(0, 0), (1, 1), (2, 2), (5, 4), (16, 16), (48, 32), (64, 64)] {
+            let mut slots = [0u16; 64];
+            let p = power_of_two_part(&mut slots[..n]);
+            assert_eq!(p.len(), part, "{n} slots");
+            for key in (0..500u32).map(|i| i.wrapping_mul(0x0101_0031)) {
+                if part > 0 {
+                    assert!(bucket(key, part) < part, "{n} slots, key {key}");
+                }
+            }
+        }
+        assert_eq!(table_mask(16384), 16383);
+        assert_eq!(find(&[], 7, |_| Some(7)), None);
+        assert!(matches!(probe(&[], 7, |_| Some(7)), Probe::Full));
+    }
+
     /// `find` answers as `probe` does, for stored and absent keys, in power-of-two tables (clusters that wrap
     /// past the last slot included) and in a table of another size (on the positions its mask reaches), up to a full
     /// one.
