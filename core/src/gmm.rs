@@ -426,16 +426,21 @@ fn two_means_partition(range: &mut [u16], voxels: &[Voxel], seeds: [Feature; 2],
     let mut centres = seeds;
     let nearer_first = |f: &Feature, c: &[Feature; 2]| f.distance2(&c[0], w) <= f.distance2(&c[1], w);
     for _ in 0..params.gmm_kmeans_iters {
-        let mut acc = [Moments::about(centres[0].p), Moments::about(centres[1].p)];
-        let mut normals = [[0.0f32; 3]; 2];
+        let (mut a0, mut a1) = (Moments::about(centres[0].p), Moments::about(centres[1].p));
+        let (mut n0, mut n1) = ([0.0f32; 3], [0.0f32; 3]);
         for v in range.iter().filter_map(|&i| voxels.get(i as usize)) {
             let f = Feature::of(v);
-            let k = if nearer_first(&f, &centres) { 0 } else { 1 };
-            if let (Some(a), Some(n)) = (acc.get_mut(k), normals.get_mut(k)) {
-                a.add(f.p, v.count as f32);
-                *n = linalg::add(*n, linalg::scale(f.n, v.count as f32));
+            let w = v.count as f32;
+            // A branch per group, not an index into arrays of sums: each group's sums stay in registers.
+            if nearer_first(&f, &centres) {
+                a0.add(f.p, w);
+                n0 = linalg::add(n0, linalg::scale(f.n, w));
+            } else {
+                a1.add(f.p, w);
+                n1 = linalg::add(n1, linalg::scale(f.n, w));
             }
         }
+        let (acc, normals) = ([a0, a1], [n0, n1]);
         if acc[0].weight == 0.0 || acc[1].weight == 0.0 {
             return None;
         }
