@@ -381,7 +381,10 @@ impl<'s> Mapper<'s> {
         Ok(segment::segment(&frame, self.scratch, &self.params, ids, instances, class))
     }
 
-    /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks).
+    /// Stage 1 + voxel sums (first step of [`Mapper::process`]; public for benchmarks). Never inlined: inlined
+    /// into the firmware's loop over frames, its normals' neighbour loop spilled more (Cortex-M7 cabinet frames
+    /// 0.25–0.3 M instructions more).
+    #[inline(never)]
     pub fn stage_voxels(&mut self, checked: &CheckedFrame<'_>) {
         self.report = FrameReport { frame: self.frames + 1, ..FrameReport::default() };
         self.params.sample_frame = self.frames;
