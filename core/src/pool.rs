@@ -357,8 +357,8 @@ mod tests {
     }
 
     /// `find` answers as `probe` does, for stored and absent keys, in power-of-two tables (clusters that wrap
-    /// past the last slot included) and in a table of another size (on the positions its mask reaches), up to a full
-    /// one.
+    /// past the last slot included) and in a table of another size (on the positions its mask reaches), up to
+    /// a full one.
     #[test]
     fn find_agrees_with_probe() {
         for (n, count) in [(64, 40), (16, 15), (16, 16), (48, 12)] {
